@@ -1,0 +1,28 @@
+# The two commands of the README. Each creates .venv and installs the project on first use.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed-stamp
+
+.PHONY: run test bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+## run: the main job (writes its table/plot/numbers under out/)
+run: $(STAMP)
+	$(PY) -m particlesim.cli main
+
+## test: the whole test suite (float64)
+test: $(STAMP)
+	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+## bench: rerun the benchmarks and rewrite their results
+bench: $(STAMP)
+	$(PY) -m benchmarks.run_all
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

@@ -1,0 +1,25 @@
+"""The exceptions particlesim raises for bad input. Each message names the body/joint/file and the condition."""
+
+from __future__ import annotations
+
+__all__ = ["ModelError", "InertiaError", "PlacementError", "NegativeMassWarning", "ParseError"]
+
+
+class ModelError(ValueError):
+    """A model (body, joint, mechanism, file) violates a stated condition."""
+
+
+class InertiaError(ModelError):
+    """A rigid-body inertia is not physical (mass, symmetry, positive definiteness, triangle inequalities)."""
+
+
+class PlacementError(ModelError):
+    """Equivalent particles placed where they cannot represent the body (singular or wrong-dimension placement)."""
+
+
+class ParseError(ModelError):
+    """A model file could not be parsed or describes something unsupported."""
+
+
+class NegativeMassWarning(UserWarning):
+    """An equivalent particle received a negative mass: the dynamics stay exact, physical consistency is lost."""

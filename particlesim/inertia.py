@@ -1,0 +1,181 @@
+"""Rigid-body inertia: validation, parallel-axis shifts and frame changes.
+
+Two equivalent descriptions are used across the package:
+
+* :class:`RigidInertia` — mass ``m``, centre of mass ``c`` and inertia tensor ``I_G`` *about the CoM*, all in the
+  body frame.
+* the 10-vector of the Krang report (Zafar §5.1), *about the frame origin*:
+  ``[m, m cx, m cy, m cz, XX, XY, XZ, YY, YZ, ZZ]`` with ``J_O = I_G + m (|c|^2 E - c c^T)``
+  (see :func:`to_origin_params` / :meth:`RigidInertia.from_origin_params`).
+
+The second moment (``S = sum m_i r_i r_i^T``) and the inertia tensor are related by ``I = tr(S) E - S`` and
+``S = tr(I)/2 E - I``; equivalent-particle solves match ``S`` (Attia eqs. (3)–(8)).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .errors import InertiaError
+
+__all__ = [
+    "RigidInertia",
+    "inertia_about_point",
+    "inertia_about_com",
+    "rotate_inertia",
+    "second_moment_from_inertia",
+    "inertia_from_second_moment",
+    "check_inertia",
+    "PHYSICAL_RTOL",
+]
+
+#: Relative slack (w.r.t. the trace) allowed on triangle inequalities and on zero principal moments.
+PHYSICAL_RTOL = 1e-9
+
+
+def inertia_about_point(i_com, mass, com, point) -> Float[Array, "3 3"]:
+    """Parallel-axis theorem: inertia about ``point`` from the inertia about the CoM (same axes)."""
+    d = jnp.asarray(com) - jnp.asarray(point)
+    return jnp.asarray(i_com) + mass * (jnp.dot(d, d) * jnp.eye(3) - jnp.outer(d, d))
+
+
+def inertia_about_com(i_point, mass, com, point) -> Float[Array, "3 3"]:
+    """Inverse parallel-axis shift: inertia about the CoM from the inertia about ``point``."""
+    d = jnp.asarray(com) - jnp.asarray(point)
+    return jnp.asarray(i_point) - mass * (jnp.dot(d, d) * jnp.eye(3) - jnp.outer(d, d))
+
+
+def rotate_inertia(inertia, rotation) -> Float[Array, "3 3"]:
+    """Express a tensor given in frame b in frame a, with ``rotation = R_ab``: ``R I R^T``."""
+    r = jnp.asarray(rotation)
+    return r @ jnp.asarray(inertia) @ r.T
+
+
+def second_moment_from_inertia(inertia) -> Float[Array, "3 3"]:
+    """``S = tr(I)/2 E - I``, the second moment of mass ``sum m r r^T`` about the same point."""
+    inertia = jnp.asarray(inertia)
+    return 0.5 * jnp.trace(inertia) * jnp.eye(3) - inertia
+
+
+def inertia_from_second_moment(s) -> Float[Array, "3 3"]:
+    """``I = tr(S) E - S``."""
+    s = jnp.asarray(s)
+    return jnp.trace(s) * jnp.eye(3) - s
+
+
+def _is_concrete(*xs) -> bool:
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(xs))
+
+
+def check_inertia(mass, com, inertia, name: str = "body", *, degenerate_ok: bool = False) -> None:
+    """Raise :class:`InertiaError` naming ``name`` if ``(mass, com, inertia about CoM)`` is not physical.
+
+    Conditions: finite numbers; shapes ``()``, ``(3,)``, ``(3, 3)``; ``mass > 0``; a symmetric tensor; principal
+    moments ``> 0`` (``>= 0`` with ``degenerate_ok``, for rods and planar mass distributions); and the triangle
+    inequalities ``I_k <= I_i + I_j`` between principal moments. Tolerances are :data:`PHYSICAL_RTOL` relative to
+    the trace. Does nothing for traced values (checks belong at model construction, outside ``jit``).
+    """
+    if not _is_concrete(mass, com, inertia):
+        return
+    m = np.asarray(mass, dtype=float)
+    c = np.asarray(com, dtype=float)
+    i = np.asarray(inertia, dtype=float)
+    if m.shape != ():
+        raise InertiaError(f"{name}: mass must be a scalar, got shape {m.shape}")
+    if c.shape != (3,):
+        raise InertiaError(f"{name}: centre of mass must have shape (3,), got {c.shape}")
+    if i.shape != (3, 3):
+        raise InertiaError(f"{name}: inertia tensor must have shape (3, 3), got {i.shape}")
+    for label, x in (("mass", m), ("centre of mass", c), ("inertia tensor", i)):
+        if not np.all(np.isfinite(x)):
+            raise InertiaError(f"{name}: {label} contains NaN or inf: {x.tolist()}")
+    if not m > 0:
+        raise InertiaError(f"{name}: mass must be positive, got {float(m)!r}")
+    scale = max(float(np.trace(i)), np.finfo(float).tiny)
+    if not np.allclose(i, i.T, rtol=0.0, atol=PHYSICAL_RTOL * scale):
+        raise InertiaError(f"{name}: inertia tensor is not symmetric: {i.tolist()}")
+    eig = np.linalg.eigvalsh(0.5 * (i + i.T))
+    tol = PHYSICAL_RTOL * scale
+    if degenerate_ok:
+        if eig[0] < -tol:
+            raise InertiaError(
+                f"{name}: inertia tensor is not positive semi-definite (principal moments {eig.tolist()})"
+            )
+    elif not eig[0] > tol:
+        raise InertiaError(f"{name}: inertia tensor is not positive definite (principal moments {eig.tolist()})")
+    for k in range(3):
+        others = eig.sum() - eig[k]
+        if eig[k] > others + tol:
+            raise InertiaError(
+                f"{name}: principal moments {eig.tolist()} violate the triangle inequality "
+                f"(I{k + 1} = {eig[k]:.6g} > sum of the other two = {others:.6g})"
+            )
+
+
+class RigidInertia(eqx.Module):
+    """Mass, centre of mass (body frame) and inertia tensor about the centre of mass (body axes).
+
+    All three are ``jax.Array`` leaves, so ``jax.vmap``/``jax.grad`` over bodies work. Construction from concrete
+    numbers validates (see :func:`check_inertia`); pass ``name`` to have errors name the body.
+    """
+
+    mass: Float[Array, ""]
+    com: Float[Array, "3"]
+    inertia: Float[Array, "3 3"]
+
+    def __init__(self, mass: ArrayLike, com: ArrayLike, inertia: ArrayLike, *, name: str = "body",
+                 degenerate_ok: bool = False):
+        check_inertia(mass, com, inertia, name, degenerate_ok=degenerate_ok)
+        self.mass = jnp.asarray(mass, dtype=float)
+        self.com = jnp.asarray(com, dtype=float)
+        self.inertia = jnp.asarray(inertia, dtype=float)
+
+    @classmethod
+    def from_principal(cls, mass, com, moments, products=(0.0, 0.0, 0.0), *, name="body", degenerate_ok=False):
+        """From ``(Ixx, Iyy, Izz)`` and products ``(Iyz, Ixz, Ixy)`` about the CoM (Attia Table 1 order)."""
+        ixx, iyy, izz = moments
+        iyz, ixz, ixy = products
+        i = [[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]
+        return cls(mass, com, i, name=name, degenerate_ok=degenerate_ok)
+
+    @classmethod
+    def from_origin_params(cls, params: ArrayLike, *, name="body", degenerate_ok=False):
+        """From ``[m, m cx, m cy, m cz, XX, XY, XZ, YY, YZ, ZZ]`` with the inertia about the frame origin."""
+        p = jnp.asarray(params, dtype=float)
+        if p.shape != (10,):
+            raise InertiaError(f"{name}: origin parameters must have shape (10,), got {p.shape}")
+        m = p[0]
+        c = p[1:4] / m
+        j = jnp.array([[p[4], p[5], p[6]], [p[5], p[7], p[8]], [p[6], p[8], p[9]]])
+        return cls(m, c, inertia_about_com(j, m, c, jnp.zeros(3)), name=name, degenerate_ok=degenerate_ok)
+
+    def about(self, point: ArrayLike) -> Float[Array, "3 3"]:
+        """Inertia tensor about ``point`` (body axes)."""
+        return inertia_about_point(self.inertia, self.mass, self.com, point)
+
+    def to_origin_params(self) -> Float[Array, "10"]:
+        """The report's 10-vector ``[m, m c, XX, XY, XZ, YY, YZ, ZZ]`` about the frame origin."""
+        j = self.about(jnp.zeros(3))
+        return jnp.concatenate(
+            [self.mass[None], self.mass * self.com, jnp.stack([j[0, 0], j[0, 1], j[0, 2], j[1, 1], j[1, 2], j[2, 2]])]
+        )
+
+    def second_moment(self) -> Float[Array, "3 3"]:
+        """``sum m r r^T`` about the body-frame origin."""
+        return second_moment_from_inertia(self.about(jnp.zeros(3)))
+
+    def transformed(self, rotation: ArrayLike, translation: ArrayLike) -> "RigidInertia":
+        """The same body described in a frame a where the body frame b sits at pose ``(R_ab, p_ab)``."""
+        r = jnp.asarray(rotation)
+        return RigidInertia(self.mass, r @ self.com + jnp.asarray(translation), rotate_inertia(self.inertia, r),
+                            degenerate_ok=True)
+
+    def kinetic_energy(self, v_com: ArrayLike, omega: ArrayLike) -> Float[Array, ""]:
+        """``1/2 m |v_G|^2 + 1/2 w^T I_G w`` with both vectors in body axes."""
+        v = jnp.asarray(v_com)
+        w = jnp.asarray(omega)
+        return 0.5 * self.mass * jnp.dot(v, v) + 0.5 * w @ self.inertia @ w

@@ -1,0 +1,129 @@
+"""Rotations, skew matrices and rigid transforms: the one place frame algebra lives.
+
+Conventions
+-----------
+* A rotation ``R`` of shape ``(3, 3)`` maps coordinates in a child frame to its parent frame:
+  ``x_parent = R @ x_child + p``.
+* A pose is the pair ``(R, p)``; :func:`compose` chains them, :func:`invert` inverts one.
+* URDF roll-pitch-yaw: ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
+
+All functions are pure, jit/vmap/grad friendly and work on the trailing dimensions only where stated.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+__all__ = [
+    "skew",
+    "unskew",
+    "rot_x",
+    "rot_y",
+    "rot_z",
+    "rpy_to_matrix",
+    "axis_angle_to_matrix",
+    "compose",
+    "invert",
+    "transform_point",
+    "frame_from_points",
+]
+
+
+def skew(v: Float[ArrayLike, "3"]) -> Float[Array, "3 3"]:
+    """The cross-product matrix: ``skew(a) @ b == cross(a, b)``."""
+    v = jnp.asarray(v)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    o = jnp.zeros_like(x)
+    return jnp.stack(
+        [jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2
+    )
+
+
+def unskew(m: Float[ArrayLike, "3 3"]) -> Float[Array, "3"]:
+    """The vector of the skew-symmetric part of ``m`` (inverse of :func:`skew`)."""
+    m = jnp.asarray(m)
+    return 0.5 * jnp.stack(
+        [m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1
+    )
+
+
+def _rot(c, s, axis: int) -> Array:
+    o, i = jnp.zeros_like(c), jnp.ones_like(c)
+    if axis == 0:
+        rows = [[i, o, o], [o, c, -s], [o, s, c]]
+    elif axis == 1:
+        rows = [[c, o, s], [o, i, o], [-s, o, c]]
+    else:
+        rows = [[c, -s, o], [s, c, o], [o, o, i]]
+    return jnp.stack([jnp.stack(r, -1) for r in rows], -2)
+
+
+def rot_x(angle: ArrayLike) -> Float[Array, "3 3"]:
+    """Rotation by ``angle`` about x."""
+    a = jnp.asarray(angle)
+    return _rot(jnp.cos(a), jnp.sin(a), 0)
+
+
+def rot_y(angle: ArrayLike) -> Float[Array, "3 3"]:
+    """Rotation by ``angle`` about y."""
+    a = jnp.asarray(angle)
+    return _rot(jnp.cos(a), jnp.sin(a), 1)
+
+
+def rot_z(angle: ArrayLike) -> Float[Array, "3 3"]:
+    """Rotation by ``angle`` about z."""
+    a = jnp.asarray(angle)
+    return _rot(jnp.cos(a), jnp.sin(a), 2)
+
+
+def rpy_to_matrix(rpy: Float[ArrayLike, "3"]) -> Float[Array, "3 3"]:
+    """URDF roll-pitch-yaw to a rotation matrix, ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``."""
+    rpy = jnp.asarray(rpy)
+    return rot_z(rpy[..., 2]) @ rot_y(rpy[..., 1]) @ rot_x(rpy[..., 0])
+
+
+def axis_angle_to_matrix(axis: Float[ArrayLike, "3"], angle: ArrayLike) -> Float[Array, "3 3"]:
+    """Rodrigues' formula for a rotation by ``angle`` about the **unit** vector ``axis``.
+
+    Written as ``I + sin(a) K + (1 - cos(a)) K^2``; smooth in ``angle`` everywhere (no division), so its
+    gradients are finite at zero angle.
+    """
+    k = skew(axis)
+    a = jnp.asarray(angle)[..., None, None]
+    return jnp.eye(3) + jnp.sin(a) * k + (1.0 - jnp.cos(a)) * (k @ k)
+
+
+def compose(pose_ab, pose_bc):
+    """Chain poses: ``(R_ab, p_ab) o (R_bc, p_bc) = (R_ab R_bc, p_ab + R_ab p_bc)``."""
+    r_ab, p_ab = pose_ab
+    r_bc, p_bc = pose_bc
+    return r_ab @ r_bc, p_ab + r_ab @ p_bc
+
+
+def invert(pose):
+    """Inverse pose: ``(R, p)^-1 = (R^T, -R^T p)``."""
+    r, p = pose
+    rt = jnp.swapaxes(r, -1, -2)
+    return rt, -(rt @ p[..., None])[..., 0]
+
+
+def transform_point(pose, x: Float[ArrayLike, "3"]) -> Float[Array, "3"]:
+    """Map a point from the child frame of ``pose`` to its parent frame."""
+    r, p = pose
+    return r @ jnp.asarray(x) + p
+
+
+def frame_from_points(p0, p1, p2) -> Float[Array, "3 3"]:
+    """An orthonormal right-handed frame (columns) built by Gram-Schmidt from three points.
+
+    ``e1`` along ``p1 - p0``; ``e2`` the part of ``p2 - p0`` orthogonal to ``e1``; ``e3 = e1 x e2``.
+    The points must not be collinear (the caller checks; this function does not divide by a guard).
+    """
+    a = p1 - p0
+    e1 = a / jnp.linalg.norm(a)
+    b = p2 - p0
+    b = b - jnp.dot(b, e1) * e1
+    e2 = b / jnp.linalg.norm(b)
+    e3 = jnp.cross(e1, e2)
+    return jnp.stack([e1, e2, e3], axis=-1)
