@@ -1,0 +1,1 @@
+"""Model files in and out: URDF import, MuJoCo/MJX twins."""
