@@ -1,1 +1,5 @@
-"""Model files in and out: URDF import, MuJoCo/MJX twins."""
+"""Model file import: URDF -> :class:`~particlesim.tree.TreeModel`."""
+
+from .urdf import load_urdf
+
+__all__ = ["load_urdf"]

@@ -1,0 +1,213 @@
+"""URDF import into a :class:`~particlesim.tree.TreeModel` (``xml.etree``; visual/collision ignored).
+
+Supported joints: ``revolute``/``continuous`` (both revolute, limits ignored), ``prismatic`` and ``fixed``.
+Fixed joints are merged away: a link welded to a moving link adds its inertia to that link (the report's
+10-vectors about a common origin simply add), and the joints below it are re-expressed in that link's frame.
+Links welded to the root are part of the world. The root link is fixed to the world at identity.
+
+URDF conventions (ROS): a joint places its child at ``origin`` (``xyz``, then ``rpy`` with ``R = Rz Ry Rx``),
+followed by the joint motion about/along ``axis`` (child frame, normalised here); ``<inertial>`` gives the mass,
+the CoM pose in the link frame and the inertia about the CoM in the axes of that pose.
+
+Joint order of the model = the document order of the movable joints.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+
+from ..errors import ModelError, ParseError
+from ..inertia import check_inertia
+from ..spatial import rpy_to_matrix
+from ..tree.model import PRISMATIC, REVOLUTE, TreeModel
+
+__all__ = ["load_urdf", "parse_urdf"]
+
+_KINDS = {"revolute": REVOLUTE, "continuous": REVOLUTE, "prismatic": PRISMATIC, "fixed": None}
+
+
+def _floats(text: Optional[str], n: int, default, where: str) -> np.ndarray:
+    if text is None:
+        return np.asarray(default, dtype=float)
+    try:
+        v = np.array([float(t) for t in text.split()], dtype=float)
+    except ValueError:
+        raise ParseError(f"{where}: cannot read numbers from {text!r}") from None
+    if v.shape != (n,) or not np.all(np.isfinite(v)):
+        raise ParseError(f"{where}: expected {n} finite numbers, got {text!r}")
+    return v
+
+
+def _pose(elem, where: str):
+    if elem is None:
+        return np.eye(3), np.zeros(3)
+    xyz = _floats(elem.get("xyz"), 3, np.zeros(3), f"{where} origin xyz")
+    rpy = _floats(elem.get("rpy"), 3, np.zeros(3), f"{where} origin rpy")
+    return np.asarray(rpy_to_matrix(rpy)), xyz
+
+
+def _inertial(link, name: str):
+    """``(m, com, I_com)`` in the link frame, or None without ``<inertial>``."""
+    inr = link.find("inertial")
+    if inr is None:
+        return None
+    where = f"link '{name}' inertial"
+    mass_el = inr.find("mass")
+    if mass_el is None or mass_el.get("value") is None:
+        raise ParseError(f"{where}: missing <mass value=...>")
+    m = _floats(mass_el.get("value"), 1, None, f"{where} mass")[0]
+    r, c = _pose(inr.find("origin"), where)
+    it = inr.find("inertia")
+    keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    if it is None:
+        raise ParseError(f"{where}: missing <inertia .../>")
+    vals = [_floats(it.get(k, "0"), 1, None, f"{where} {k}")[0] for k in keys]
+    xx, xy, xz, yy, yz, zz = vals
+    i_local = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+    return m, c, r @ i_local @ r.T
+
+
+def _origin_params(m, c, i_com) -> np.ndarray:
+    j = i_com + m * (c @ c * np.eye(3) - np.outer(c, c))
+    return np.array([m, *(m * c), j[0, 0], j[0, 1], j[0, 2], j[1, 1], j[1, 2], j[2, 2]])
+
+
+def _read(source: Union[str, os.PathLike]):
+    if isinstance(source, str) and source.lstrip().startswith("<"):
+        label, text = "<urdf string>", source
+    else:
+        label = str(source)
+        try:
+            text = Path(source).read_text()
+        except OSError as e:
+            raise ParseError(f"{label}: cannot read URDF file: {e}") from None
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as e:
+        raise ParseError(f"{label}: not well-formed XML: {e}") from None
+    if root.tag != "robot":
+        raise ParseError(f"{label}: root element is <{root.tag}>, expected <robot>")
+    return label, root
+
+
+def parse_urdf(source, gravity=(0.0, 0.0, -9.81), **params) -> TreeModel:
+    """Alias of :func:`load_urdf`."""
+    return load_urdf(source, gravity, **params)
+
+
+def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, viscous=None, coulomb=None,
+              rotor_inertia=None) -> TreeModel:
+    """Build a :class:`TreeModel` from a URDF file path or a URDF XML string.
+
+    ``gravity`` is in the frame of the root link. Optional per-joint ``viscous``/``coulomb`` friction and
+    ``rotor_inertia`` (eqs. 17–18; not URDF fields) are passed to the model. Raises :class:`ParseError` naming the
+    link/joint for unparsable files, unsupported joint types, kinematic loops, missing inertials on moving links,
+    and :class:`~particlesim.errors.InertiaError` for non-physical inertias.
+    """
+    label, root = _read(source)
+    links = {}
+    for el in root.findall("link"):
+        name = el.get("name")
+        if name is None:
+            raise ParseError(f"{label}: a <link> has no name")
+        if name in links:
+            raise ParseError(f"{label}: link '{name}' is defined twice")
+        links[name] = el
+    joints, parent_joint = [], {}
+    for el in root.findall("joint"):
+        name, jtype = el.get("name"), el.get("type")
+        where = f"{label}: joint '{name}'"
+        if jtype not in _KINDS:
+            raise ParseError(f"{where} has unsupported type {jtype!r} (supported: {sorted(_KINDS)})")
+        try:
+            parent, child = el.find("parent").get("link"), el.find("child").get("link")
+        except AttributeError:
+            raise ParseError(f"{where}: missing <parent link=...> or <child link=...>") from None
+        for ln in (parent, child):
+            if ln not in links:
+                raise ParseError(f"{where} refers to undefined link '{ln}'")
+        if child in parent_joint:
+            raise ParseError(f"{label}: link '{child}' has two parents (joints '{parent_joint[child]}' and "
+                             f"'{name}'): kinematic loops are not supported")
+        parent_joint[child] = name
+        r0, p0 = _pose(el.find("origin"), where)
+        axis = np.array([1.0, 0.0, 0.0])
+        if _KINDS[jtype] is not None:
+            ax_el = el.find("axis")
+            axis = _floats(None if ax_el is None else ax_el.get("xyz"), 3, axis, f"{where} axis")
+            nrm = np.linalg.norm(axis)
+            if nrm < 1e-12:
+                raise ParseError(f"{where}: axis is zero")
+            axis = axis / nrm
+        joints.append(dict(name=name, kind=_KINDS[jtype], parent=parent, child=child, r0=r0, p0=p0, axis=axis))
+    roots = [ln for ln in links if ln not in parent_joint]
+    if len(roots) != 1:
+        raise ParseError(f"{label}: expected one root link, found {roots or 'none (kinematic loop)'}")
+    movable = [jt for jt in joints if jt["kind"] is not None]
+    index = {jt["name"]: i for i, jt in enumerate(movable)}
+    # Walk the tree from the root: owner body (-1 = world) and pose of every link in its owner's frame.
+    owner = {roots[0]: -1}
+    pose = {roots[0]: (np.eye(3), np.zeros(3))}
+    children = {}
+    for jt in joints:
+        children.setdefault(jt["parent"], []).append(jt)
+    stack, seen = [roots[0]], {roots[0]}
+    placement = {}
+    while stack:
+        ln = stack.pop()
+        rp, pp = pose[ln]
+        for jt in children.get(ln, []):
+            c = jt["child"]
+            if c in seen:
+                raise ParseError(f"{label}: joint '{jt['name']}' closes a kinematic loop at link '{c}'")
+            seen.add(c)
+            r_o, p_o = rp @ jt["r0"], pp + rp @ jt["p0"]
+            if jt["kind"] is None:
+                owner[c], pose[c] = owner[ln], (r_o, p_o)
+            else:
+                owner[c], pose[c] = index[jt["name"]], (np.eye(3), np.zeros(3))
+                placement[jt["name"]] = (owner[ln], r_o, p_o)
+            stack.append(c)
+    unreached = [ln for ln in links if ln not in seen]
+    if unreached:
+        raise ParseError(f"{label}: links {unreached} are not connected to the root '{roots[0]}' (kinematic loop)")
+    n = len(movable)
+    inertia = np.zeros((n, 10))
+    for ln, el in links.items():
+        b = owner[ln]
+        moved_by = [jt["name"] for jt in movable if jt["child"] == ln]
+        data = _inertial(el, ln)
+        if data is None:
+            if moved_by:
+                raise ParseError(f"{label}: link '{ln}' is moved by joint '{moved_by[0]}' but has no <inertial>")
+            continue
+        if b < 0:
+            continue  # welded to the world: no dynamics
+        m, c, i_com = data
+        if m == 0.0 and not np.any(i_com):
+            continue  # an explicitly massless link
+        check_inertia(m, c, i_com, f"link '{ln}'", degenerate_ok=True)
+        r, p = pose[ln]
+        inertia[b] += _origin_params(m, r @ c + p, r @ i_com @ r.T)
+    try:
+        return TreeModel(
+            parents=[placement[jt["name"]][0] for jt in movable],
+            kinds=[jt["kind"] for jt in movable],
+            axes=np.array([jt["axis"] for jt in movable]).reshape(n, 3),
+            origin_rotations=np.array([placement[jt["name"]][1] for jt in movable]).reshape(n, 3, 3),
+            origin_xyz=np.array([placement[jt["name"]][2] for jt in movable]).reshape(n, 3),
+            inertia=inertia,
+            gravity=gravity,
+            link_names=[jt["child"] for jt in movable],
+            joint_names=[jt["name"] for jt in movable],
+            viscous=viscous,
+            coulomb=coulomb,
+            rotor_inertia=rotor_inertia,
+        )
+    except ModelError as e:
+        raise type(e)(f"{label}: {e}") from None

@@ -1,0 +1,145 @@
+"""Kinematics of a :class:`TreeModel`: link poses, velocities (Zafar eqs. 7–8), Jacobians (§3), wrench torques (eq. 16).
+
+Frames: ``R[j]`` maps link-``j`` coordinates to world coordinates and ``p[j]`` is the link origin ``O_j`` in the
+world (the report's ``^0A_j`` and ``^0P_j``). A frame Jacobian ``J_j`` (6 x n) stacks the linear velocity of ``O_j``
+over the angular velocity of link ``j``: ``[v; w] = J_j qd`` (the report's ``\\mathbb{J}_j``), expressed in world axes
+(``frame="world"``, the report's ``^0\\mathbb{J}_j``; Pinocchio's LOCAL_WORLD_ALIGNED) or in link axes
+(``frame="local"``, ``^j\\mathbb{J}_j``; Pinocchio's LOCAL).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from ..errors import ModelError
+from ..spatial import axis_angle_to_matrix
+from .model import TreeModel
+
+__all__ = [
+    "joint_transforms",
+    "link_poses",
+    "link_velocities",
+    "world_axes",
+    "link_jacobians",
+    "link_jacobian",
+    "wrench_torques",
+]
+
+
+def joint_transforms(model: TreeModel, q: Float[ArrayLike, " n"]):
+    """Parent-from-child poses ``(R (n,3,3), p (n,3))`` of every joint at ``q`` (the report's ``^iT_j``), vectorised."""
+    q = jnp.asarray(q)
+    ax = model.axes_array
+    rev = model.is_revolute
+    r0 = jnp.asarray(model.origin_rotation_array)
+    if rev.all():
+        r = r0 @ axis_angle_to_matrix(jnp.asarray(ax), q)
+        p = model.origin_xyz
+    else:
+        angle = jnp.where(jnp.asarray(rev), q, 0.0)
+        slide = jnp.where(jnp.asarray(rev), 0.0, q)
+        r = r0 @ axis_angle_to_matrix(jnp.asarray(ax), angle)
+        p = model.origin_xyz + (r0 @ (jnp.asarray(ax) * slide[:, None])[..., None])[..., 0]
+    return r, p
+
+
+def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
+    """World poses ``(R (n,3,3), p (n,3))`` of all link frames (forward kinematics, parents first)."""
+    r_rel, p_rel = joint_transforms(model, q)
+    rs, ps = [None] * model.nq, [None] * model.nq
+    for i in model.topological_order:
+        k = model.parents[i]
+        if k < 0:
+            rs[i], ps[i] = r_rel[i], p_rel[i]
+        else:
+            rs[i] = rs[k] @ r_rel[i]
+            ps[i] = ps[k] + rs[k] @ p_rel[i]
+    return jnp.stack(rs), jnp.stack(ps)
+
+
+def link_velocities(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"]):
+    """Angular and linear velocities ``(w (n,3), v (n,3))`` of the link frames, each in its own link axes.
+
+    The recursion of Zafar eqs. (7)–(8): ``w_j = A_ji w_i + e_j qd_j`` and ``V_j = A_ji (V_i + w_i x P_j)``
+    (plus ``e_j qd_j`` for a prismatic joint), with ``A_ji = (^iA_j)^T`` and ``P_j`` the origin of ``j`` in ``i``.
+    """
+    qd = jnp.asarray(qd)
+    r_rel, p_rel = joint_transforms(model, q)
+    e = jnp.asarray(model.axes_array)
+    rev = model.is_revolute
+    ws, vs = [None] * model.nq, [None] * model.nq
+    for j in model.topological_order:
+        i = model.parents[j]
+        a_ji = r_rel[j].T
+        if i < 0:
+            w, v = jnp.zeros(3), jnp.zeros(3)
+        else:
+            w = a_ji @ ws[i]
+            v = a_ji @ (vs[i] + jnp.cross(ws[i], p_rel[j]))
+        if rev[j]:
+            w = w + e[j] * qd[j]
+        else:
+            v = v + e[j] * qd[j]
+        ws[j], vs[j] = w, v
+    return jnp.stack(ws), jnp.stack(vs)
+
+
+def world_axes(model: TreeModel, rot: Float[Array, "n 3 3"]) -> Float[Array, "n 3"]:
+    """Joint axes in world coordinates, ``a_k = R_k e_k`` (the axis is fixed in the child link)."""
+    return (rot @ jnp.asarray(model.axes_array)[..., None])[..., 0]
+
+
+def link_jacobians(model: TreeModel, rot, pos) -> Float[Array, "n 6 n"]:
+    """World-axes Jacobians of all link origins from poses, vectorised with the static support mask (§3).
+
+    Column ``k`` of ``J_j``: ``[a_k x (p_j - p_k); a_k]`` (revolute) or ``[a_k; 0]`` (prismatic) if joint ``k`` moves
+    link ``j``, else zero.
+    """
+    a = world_axes(model, rot)  # (n, 3) indexed by joint k
+    mask = jnp.asarray(model.support, dtype=pos.dtype)  # (j, k)
+    rev = model.is_revolute
+    r = pos[:, None, :] - pos[None, :, :]  # (j, k, 3): p_j - p_k
+    ak = jnp.broadcast_to(a[None, :, :], r.shape)
+    if rev.all():
+        lin = jnp.cross(ak, r)
+        ang = ak
+    else:
+        rv = jnp.asarray(rev, dtype=pos.dtype)[None, :, None]
+        lin = rv * jnp.cross(ak, r) + (1.0 - rv) * ak
+        ang = rv * ak
+    jac = jnp.concatenate([lin, ang], axis=-1) * mask[:, :, None]  # (j, k, 6)
+    return jnp.swapaxes(jac, 1, 2)
+
+
+def _frame_rotation(rot, frame: str):
+    if frame == "world":
+        return None
+    if frame == "local":
+        return jnp.swapaxes(rot, -1, -2)
+    raise ModelError(f"unknown Jacobian frame {frame!r} (expected 'world' or 'local')")
+
+
+def link_jacobian(model: TreeModel, q: Float[ArrayLike, " n"], link, *, frame: str = "world") -> Float[Array, "6 n"]:
+    """The 6 x n Jacobian of link ``link`` (index or name): ``[v_O; w] = J qd`` in world or link axes (§3)."""
+    j = model.link_index(link)
+    rot, pos = link_poses(model, q)
+    jac = link_jacobians(model, rot, pos)[j]
+    rt = _frame_rotation(rot[j], frame)
+    if rt is not None:
+        jac = jnp.concatenate([rt @ jac[:3], rt @ jac[3:]], axis=0)
+    return jac
+
+
+def wrench_torques(model: TreeModel, q: Float[ArrayLike, " n"], link, wrench: Float[ArrayLike, "6"], *,
+                   frame: str = "world") -> Float[Array, " n"]:
+    """Joint torques ``J_j^T f`` of a wrench ``f = [force; moment]`` acting on ``link`` at its origin (eq. 16).
+
+    ``frame`` says in which axes ``wrench`` is given (``"world"`` or ``"local"``, as for :func:`link_jacobian`).
+    Several wrenches on several links add: sum the results.
+    """
+    w = jnp.asarray(wrench, dtype=float)
+    if w.shape != (6,):
+        raise ModelError(f"wrench must have shape (6,) = [force; moment], got {w.shape}")
+    return link_jacobian(model, q, link, frame=frame).T @ w
+

@@ -1,0 +1,247 @@
+"""The tree model: rigid links joined by revolute and prismatic joints (fixed joints merged away).
+
+Each moving link ``i`` has exactly one joint ``i`` connecting it to its parent link ``parents[i]`` (``-1`` is the
+world). Joint ``i`` places the child link frame in the parent link frame as
+
+    ``T_parent_child(q_i) = (R0_i, p0_i) o joint_motion(axis_i, q_i)``
+
+(URDF convention; the report's ``^iT_j`` of Zafar §2.1), where ``joint_motion`` is a rotation by ``q_i`` about
+``axis_i`` (revolute) or a translation ``axis_i q_i`` (prismatic), ``axis_i`` given in the child frame (the
+report's ``^je_j``).
+
+Static (topology, in the treedef): names, ``parents``, ``kinds``, ``axes``, ``origin_rotations`` (``R0_i``).
+Differentiable ``jax.Array`` leaves:
+
+* ``inertia``  ``(n, 10)``: per link ``[m, m cx, m cy, m cz, XX, XY, XZ, YY, YZ, ZZ]``, inertia about the link frame
+  origin, in link axes (Zafar §5.1, eq. 11 uses ``J_j`` about the origin);
+* ``origin_xyz`` ``(n, 3)``: ``p0_i``, the joint origin in the parent frame (geometric lengths, e.g. L1..L9);
+* ``gravity`` ``(3,)`` in the world frame;
+* optional per-joint ``viscous`` (``Fv``), ``coulomb`` (``Fc``) (eq. 17) and ``rotor_inertia`` (``I_a = N^2 J_m``,
+  eq. 18). ``None`` means absent: the code path is skipped at trace time and costs nothing.
+
+Batches of parameter sets: build models with the same topology, stack them with
+``jax.tree.map(lambda *x: jnp.stack(x), *models)`` and map with ``jax.vmap(f, in_axes=(0, None, ...))``.
+"""
+
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ..errors import InertiaError, ModelError
+from ..inertia import check_inertia
+
+__all__ = ["TreeModel", "REVOLUTE", "PRISMATIC", "JOINT_KINDS"]
+
+REVOLUTE = "revolute"
+PRISMATIC = "prismatic"
+JOINT_KINDS = (REVOLUTE, PRISMATIC)
+
+
+def _concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def _vec_param(x, n, name, joint_names) -> Optional[Array]:
+    if x is None:
+        return None
+    a = jnp.asarray(x, dtype=float)
+    if a.shape == ():
+        a = jnp.full((n,), a)
+    if a.shape != (n,):
+        raise ModelError(f"{name} must have shape ({n},) (one per joint), got {a.shape}")
+    if _concrete(a):
+        bad = ~np.isfinite(np.asarray(a))
+        if bad.any():
+            raise ModelError(f"{name} of joint '{joint_names[int(np.argmax(bad))]}' is NaN or inf")
+    return a
+
+
+def origin_params_check(params, name: str) -> None:
+    """Raise :class:`InertiaError` naming ``name`` unless the 10-vector (about the origin) is a physical body."""
+    p = np.asarray(params, dtype=float)
+    if not np.all(np.isfinite(p)):
+        raise InertiaError(f"{name}: inertial parameters contain NaN or inf: {p.tolist()}")
+    m = p[0]
+    if not m > 0:
+        raise InertiaError(f"{name}: mass must be positive, got {m!r}")
+    c = p[1:4] / m
+    j = np.array([[p[4], p[5], p[6]], [p[5], p[7], p[8]], [p[6], p[8], p[9]]])
+    i_com = j - m * (c @ c * np.eye(3) - np.outer(c, c))
+    check_inertia(m, c, i_com, name, degenerate_ok=True)
+
+
+class TreeModel(eqx.Module):
+    """A tree of rigid links and 1-DOF joints (see module docstring). ``nq == number of links == joints``."""
+
+    inertia: Float[Array, "n 10"]
+    origin_xyz: Float[Array, "n 3"]
+    gravity: Float[Array, "3"]
+    viscous: Optional[Float[Array, " n"]]
+    coulomb: Optional[Float[Array, " n"]]
+    rotor_inertia: Optional[Float[Array, " n"]]
+    link_names: tuple = eqx.field(static=True)
+    joint_names: tuple = eqx.field(static=True)
+    parents: tuple = eqx.field(static=True)
+    kinds: tuple = eqx.field(static=True)
+    axes: tuple = eqx.field(static=True)
+    origin_rotations: tuple = eqx.field(static=True)
+
+    def __init__(
+        self,
+        *,
+        parents: Sequence[int],
+        kinds: Sequence[str],
+        axes: ArrayLike,
+        origin_rotations: ArrayLike,
+        origin_xyz: ArrayLike,
+        inertia: ArrayLike,
+        gravity: ArrayLike = (0.0, 0.0, -9.81),
+        link_names: Optional[Sequence[str]] = None,
+        joint_names: Optional[Sequence[str]] = None,
+        viscous: Optional[ArrayLike] = None,
+        coulomb: Optional[ArrayLike] = None,
+        rotor_inertia: Optional[ArrayLike] = None,
+    ):
+        n = len(parents)
+        link_names = tuple(link_names) if link_names is not None else tuple(f"link{i}" for i in range(n))
+        joint_names = tuple(joint_names) if joint_names is not None else tuple(f"joint{i}" for i in range(n))
+        if len(link_names) != n or len(joint_names) != n:
+            raise ModelError(f"need {n} link and joint names, got {len(link_names)} and {len(joint_names)}")
+        parents = tuple(int(p) for p in parents)
+        for i, p in enumerate(parents):
+            if not -1 <= p < n or p == i:
+                raise ModelError(f"joint '{joint_names[i]}': parent index {p} is not a link of this model")
+        _topological_order(parents, joint_names)  # raises on cycles
+        kinds = tuple(kinds)
+        if len(kinds) != n:
+            raise ModelError(f"need {n} joint kinds, got {len(kinds)}")
+        for i, k in enumerate(kinds):
+            if k not in JOINT_KINDS:
+                raise ModelError(f"joint '{joint_names[i]}': unknown joint kind {k!r} (expected one of {JOINT_KINDS})")
+        ax = np.asarray(axes, dtype=float)
+        if ax.shape != (n, 3):
+            raise ModelError(f"axes must have shape ({n}, 3), got {ax.shape}")
+        norms = np.linalg.norm(ax, axis=1)
+        for i in range(n):
+            if not (np.isfinite(norms[i]) and abs(norms[i] - 1.0) < 1e-9):
+                raise ModelError(f"joint '{joint_names[i]}': axis {ax[i].tolist()} is not a unit vector")
+        rot = np.asarray(origin_rotations, dtype=float)
+        if rot.shape != (n, 3, 3):
+            raise ModelError(f"origin_rotations must have shape ({n}, 3, 3), got {rot.shape}")
+        for i in range(n):
+            r = rot[i]
+            if not (np.all(np.isfinite(r)) and np.allclose(r.T @ r, np.eye(3), atol=1e-9)
+                    and np.linalg.det(r) > 0):
+                raise ModelError(f"joint '{joint_names[i]}': origin rotation is not a proper rotation matrix")
+        xyz = jnp.asarray(origin_xyz, dtype=float)
+        if xyz.shape != (n, 3):
+            raise ModelError(f"origin_xyz must have shape ({n}, 3), got {xyz.shape}")
+        inr = jnp.asarray(inertia, dtype=float)
+        if inr.shape != (n, 10):
+            raise ModelError(f"inertia must have shape ({n}, 10), got {inr.shape}")
+        g = jnp.asarray(gravity, dtype=float)
+        if g.shape != (3,):
+            raise ModelError(f"gravity must have shape (3,), got {g.shape}")
+        if _concrete(xyz):
+            bad = ~np.all(np.isfinite(np.asarray(xyz)), axis=1)
+            if bad.any():
+                raise ModelError(f"joint '{joint_names[int(np.argmax(bad))]}': origin_xyz is NaN or inf")
+        if _concrete(g) and not np.all(np.isfinite(np.asarray(g))):
+            raise ModelError(f"gravity is NaN or inf: {np.asarray(g).tolist()}")
+        if _concrete(inr):
+            for i in range(n):
+                origin_params_check(np.asarray(inr[i]), f"link '{link_names[i]}'")
+        self.inertia = inr
+        self.origin_xyz = xyz
+        self.gravity = g
+        self.viscous = _vec_param(viscous, n, "viscous friction", joint_names)
+        self.coulomb = _vec_param(coulomb, n, "Coulomb friction", joint_names)
+        self.rotor_inertia = _vec_param(rotor_inertia, n, "rotor inertia", joint_names)
+        self.link_names = link_names
+        self.joint_names = joint_names
+        self.parents = parents
+        self.kinds = kinds
+        self.axes = tuple(tuple(float(v) for v in a) for a in ax)
+        self.origin_rotations = tuple(tuple(float(v) for v in r.ravel()) for r in rot)
+
+    # ---- static views (numpy, computed at trace time) ----
+    @property
+    def nq(self) -> int:
+        return len(self.parents)
+
+    @property
+    def axes_array(self) -> np.ndarray:
+        """``(n, 3)`` joint axes in the child link frames."""
+        return np.asarray(self.axes, dtype=float).reshape(self.nq, 3)
+
+    @property
+    def origin_rotation_array(self) -> np.ndarray:
+        """``(n, 3, 3)`` constant rotations ``R0_i`` of the joint frames in the parent frames."""
+        return np.asarray(self.origin_rotations, dtype=float).reshape(self.nq, 3, 3)
+
+    @property
+    def is_revolute(self) -> np.ndarray:
+        return np.array([k == REVOLUTE for k in self.kinds], dtype=bool)
+
+    @property
+    def topological_order(self) -> tuple:
+        """Link indices ordered parents first."""
+        return _topological_order(self.parents, self.joint_names)
+
+    @property
+    def support(self) -> np.ndarray:
+        """``(n, n)`` static mask: ``support[j, k]`` is True iff joint ``k`` moves link ``j`` (k is j or an ancestor)."""
+        n = self.nq
+        s = np.zeros((n, n), dtype=bool)
+        for j in range(n):
+            k = j
+            while k >= 0:
+                s[j, k] = True
+                k = self.parents[k]
+        return s
+
+    def link_index(self, link) -> int:
+        """Index of ``link`` given by index or by link name (or by the name of its joint)."""
+        if isinstance(link, (int, np.integer)):
+            if not 0 <= int(link) < self.nq:
+                raise ModelError(f"link index {link} out of range for a model with {self.nq} links")
+            return int(link)
+        if link in self.link_names:
+            return self.link_names.index(link)
+        if link in self.joint_names:
+            return self.joint_names.index(link)
+        raise ModelError(f"unknown link {link!r}; links are {list(self.link_names)}")
+
+    def with_params(self, **changes) -> "TreeModel":
+        """A copy with some array leaves replaced (``inertia=``, ``origin_xyz=``, ``gravity=``, ...), unchecked."""
+        leaves = ("inertia", "origin_xyz", "gravity", "viscous", "coulomb", "rotor_inertia")
+        for k in changes:
+            if k not in leaves:
+                raise ModelError(f"with_params: {k!r} is not a parameter leaf (one of {leaves})")
+        names = list(changes)
+        return eqx.tree_at(lambda m: [getattr(m, k) for k in names], self,
+                           [jnp.asarray(changes[k], dtype=float) for k in names], is_leaf=lambda x: x is None)
+
+
+def _topological_order(parents, joint_names) -> tuple:
+    n = len(parents)
+    order, placed = [], [False] * n
+    for _ in range(n):
+        progressed = False
+        for i in range(n):
+            if not placed[i] and (parents[i] < 0 or placed[parents[i]]):
+                placed[i] = True
+                order.append(i)
+                progressed = True
+        if len(order) == n:
+            break
+        if not progressed:
+            stuck = [joint_names[i] for i in range(n) if not placed[i]]
+            raise ModelError(f"joints {stuck} form a kinematic loop (no path to the world)")
+    return tuple(order)
