@@ -1,0 +1,1 @@
+"""Reports that the command line writes (tables, CSV/JSON, plots)."""
