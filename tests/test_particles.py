@@ -272,3 +272,16 @@ def test_balanced_layout_gives_equal_positive_masses(kind, n):
     ps = equivalent_particles(body, prim, on_negative="raise")
     np.testing.assert_allclose(ps.masses, np.full(n, float(body.mass) / n), rtol=1e-10)
     _assert_moments(ps, body)
+
+
+def test_new_parameter_values_do_not_recompile():
+    """Parameters are array leaves: a jitted solve (and its gradient) compiles once for all values."""
+    rng = np.random.default_rng(9)
+    f = jax.jit(solve_particle_masses)
+    g = jax.jit(jax.grad(lambda m, c, i, p: jnp.sum(solve_particle_masses(m, c, i, p) ** 2), argnums=(0, 2, 3)))
+    for _ in range(3):
+        body = _random_body(rng)
+        prim = _random_placement(rng, 4)
+        f(body.mass, body.com, body.inertia, prim)
+        g(body.mass, body.com, body.inertia, prim)
+    assert f._cache_size() == 1 and g._cache_size() == 1
