@@ -1,26 +1,30 @@
 """Joint-space dynamics ``A(q) qdd + C(q, qd) qd + Q(q) + Gamma_f(qd) = tau`` (Zafar eqs. 3, 17, 18).
 
-Fast path, vectorised over links with the static support mask (no per-link Python work beyond the pose loop):
+The fast path works with 6-vectors in world axes about the world origin ``O_0`` (motion ``[w; v_0]``, force
+``[n_0; f]``), so that every link and joint quantity lives in one frame and the tree enters only through the
+static support mask ``S[j, k]`` (joint ``k`` moves link ``j``). The pose loop is the only per-link Python work;
+everything else is a broadcast product or a product with the constant mask.
 
-* ``A = sum_j J_j^T M_j J_j + diag(I_a)`` with the link Jacobians ``J_j`` (world axes, about ``O_j``) and the
-  6 x 6 matrix ``M_j = [[m E, [MS]x^T], [[MS]x, J]]`` of the quadratic form eq. (11); this *is* the Hessian of the
-  kinetic energy w.r.t. ``qd`` (tested against ``jax.hessian``).
-* ``C qd + Q``: Newton–Euler wrenches about each link origin with the bias accelerations ``Jdot_j qd`` and
-  gravity as a base acceleration, mapped to joints by ``sum_j J_j^T w_j`` (a Jacobian-transpose RNEA, O(n^2)).
-  This equals ``d/dt dE/dqd - dE/dq + dU/dq`` at ``qdd = 0`` (tested against autodiff of the energies).
+* ``A = sum_j J_j^T M_j J_j + diag(I_a)`` (the Hessian of eq. (11) w.r.t. ``qd``; tested against
+  ``jax.hessian``). With joint columns ``s_k`` (``[a_k; p_k x a_k]`` revolute, ``[0; a_k]`` prismatic) the link
+  Jacobian about ``O_0`` is ``J_j = [s_k S[j, k]]_k``, so ``A_ki = s_k^T (sum_{j in subtree(i)} M_j) s_i`` for
+  ``k`` an ancestor of ``i`` (composite inertias: O(n^2)).
+* ``C qd + Q``: link momenta rates ``M_j a_j + v_j x* M_j v_j`` with ``a_j = sum_k S[j,k] (v_k x s_k qd_k)`` and
+  gravity as a base acceleration ``-g``, summed over subtrees and projected on ``s_k`` (a masked
+  recursive-Newton–Euler). Tested against ``d/dt dE/dqd - dE/dq + dU/dq`` by autodiff of eqs. (11), (15).
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple, Optional
 
+import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, ArrayLike, Float
 
-from ..spatial import skew
 from .energy import split_params
-from .kinematics import link_jacobians, link_poses, world_axes
+from .kinematics import _mm, _mv, link_poses, world_axes
 from .model import TreeModel
 
 __all__ = [
@@ -34,91 +38,106 @@ __all__ = [
 ]
 
 
-class _Kin(NamedTuple):
-    rot: Array  # (n, 3, 3) link axes -> world
-    pos: Array  # (n, 3) link origins
-    jac: Array  # (n, 6, n) [v_O; w] Jacobians, world axes
-    m: Array  # (n,)
-    ms: Array  # (n, 3) first moments, world axes
-    j: Array  # (n, 3, 3) inertia about the origin, world axes
+class _Bodies(NamedTuple):
+    """Link inertias about ``O_0`` in world axes, and joint motion columns."""
+
+    m: Array  # (n,) masses
+    h: Array  # (n, 3) first moments about O_0: m_j c_j
+    j0: Array  # (n, 3, 3) inertia tensors about O_0
+    s_w: Array  # (n, 3) angular part of the joint columns
+    s_v: Array  # (n, 3) linear part (about O_0)
 
 
-def _kinematics(model: TreeModel, q) -> _Kin:
-    rot, pos = link_poses(model, q)
-    jac = link_jacobians(model, rot, pos)
+
+
+def _bodies(model: TreeModel, q) -> _Bodies:
+    rot, pos = jax.lax.optimization_barrier(link_poses(model, q))
     m, ms, j = split_params(model.inertia)
-    ms_w = (rot @ ms[..., None])[..., 0]
-    j_w = rot @ j @ jnp.swapaxes(rot, -1, -2)
-    return _Kin(rot, pos, jac, m, ms_w, j_w)
+    hl = _mv(rot, ms)  # first moment about O_j, world axes
+    jw = _mm(_mm(rot, j), jnp.swapaxes(rot, -1, -2))
+    eye = jnp.eye(3)
+    pp = jnp.sum(pos * pos, -1)[:, None, None]
+    ph = jnp.sum(pos * hl, -1)[:, None, None]
+    outer_pp = pos[:, :, None] * pos[:, None, :]
+    cross_ph = pos[:, :, None] * hl[:, None, :]
+    j0 = jw + m[:, None, None] * (pp * eye - outer_pp) + 2.0 * ph * eye - cross_ph - jnp.swapaxes(cross_ph, -1, -2)
+    h = m[:, None] * pos + hl
+    a = world_axes(model, rot)
+    rev = model.is_revolute
+    if rev.all():
+        s_w, s_v = a, jnp.cross(pos, a)
+    else:
+        rv = jnp.asarray(rev, dtype=pos.dtype)[:, None]
+        s_w, s_v = rv * a, rv * jnp.cross(pos, a) + (1.0 - rv) * a
+    return _Bodies(m, h, j0, s_w, s_v)
 
 
-def _mass_matrix(model: TreeModel, k: _Kin) -> Array:
-    hx = skew(k.ms)  # (n, 3, 3)
-    jv, jw = k.jac[:, :3, :], k.jac[:, 3:, :]
-    f = k.m[:, None, None] * jv + jnp.swapaxes(hx, -1, -2) @ jw  # force rows of M_j J_j
-    t = hx @ jv + k.j @ jw  # moment rows
-    a = jnp.einsum("jak,jal->kl", jv, f) + jnp.einsum("jak,jal->kl", jw, t)
-    a = 0.5 * (a + a.T)
+def _apply_inertia(m, h, j0, w, v):
+    """Spatial inertia about ``O_0`` times motion ``[w; v]`` -> momentum ``[n; f]``."""
+    return _mv(j0, w) + jnp.cross(h, v), m[..., None] * v + jnp.cross(w, h)
+
+
+def _mass_matrix(model: TreeModel, b: _Bodies) -> Array:
+    sup = jnp.asarray(model.support, dtype=b.m.dtype)  # (j, k)
+    # Composite inertias of the subtree of each joint k: sum_j S[j, k] (m_j, h_j, J0_j).
+    comp = sup.T @ jnp.concatenate([b.m[:, None], b.h, b.j0.reshape(-1, 9)], axis=1)
+    mc, hc, jc = comp[:, 0], comp[:, 1:4], comp[:, 4:].reshape(-1, 3, 3)
+    fn, ff = _apply_inertia(mc, hc, jc, b.s_w, b.s_v)  # (i, 3): composite momentum of unit motion of joint i
+    g = jnp.sum(b.s_w[:, None, :] * fn[None, :, :] + b.s_v[:, None, :] * ff[None, :, :], -1)  # g[k, i]
+    lower = g * sup.T  # keep k ancestor-or-self of i
+    a = lower + lower.T - jnp.diag(jnp.diagonal(g))
     if model.rotor_inertia is not None:
         a = a + jnp.diag(model.rotor_inertia)
     return a
 
 
-def _wrench_torques(model: TreeModel, k: _Kin, qd, qdd, gravity) -> Array:
-    """``sum_j J_j^T [F_j; N_j]`` with the Newton–Euler wrench about ``O_j`` needed for accelerations ``qdd``."""
-    rev = model.is_revolute
-    jv, jw = k.jac[:, :3, :], k.jac[:, 3:, :]
-    acc_lin = jnp.zeros_like(k.pos) if gravity is None else jnp.broadcast_to(-gravity, k.pos.shape)
-    acc_ang = jnp.zeros_like(k.pos)
+def _rnea(model: TreeModel, b: _Bodies, qd, qdd, gravity) -> Array:
+    """``sum_j J_j^T (M_j a_j + v_j x* M_j v_j)`` with ``a_j`` from ``qdd``, velocity products and ``-gravity``."""
+    n = model.nq
+    sup = jnp.asarray(model.support, dtype=b.m.dtype)
+    acc_w = jnp.zeros((n, 3))
+    acc_v = jnp.zeros((n, 3)) if gravity is None else jnp.broadcast_to(-gravity, (n, 3))
+    col_w = jnp.zeros((n, 3))
+    col_v = jnp.zeros((n, 3))
     if qd is not None:
-        w = jw @ qd  # (n, 3) link angular velocities
-        v = jv @ qd  # (n, 3) origin velocities
-        a = world_axes(model, k.rot)  # (n, 3)
-        adot = jnp.cross(w, a)  # axis k fixed in link k
-        mask = jnp.asarray(model.support, dtype=k.pos.dtype)  # (j, k)
-        r = k.pos[:, None, :] - k.pos[None, :, :]  # (j, k, 3)
-        rv = jnp.asarray(rev, dtype=k.pos.dtype)
-        # Jdot_j qd: angular part sum_k rev_k adot_k qd_k; linear part per column (see module docstring).
-        col_ang = (rv * qd)[:, None] * adot  # (k, 3)
-        dv = v[:, None, :] - v[None, :, :]  # (j, k, 3): v_j - v_k
-        adot_b = jnp.broadcast_to(adot[None], r.shape)
-        a_b = jnp.broadcast_to(a[None], r.shape)
-        col_lin_rev = jnp.cross(adot_b, r) + jnp.cross(a_b, dv)
-        if rev.all():
-            col_lin = col_lin_rev
-        else:
-            col_lin = rv[None, :, None] * col_lin_rev + (1.0 - rv)[None, :, None] * adot_b
-        acc_ang = acc_ang + mask @ col_ang
-        acc_lin = acc_lin + jnp.einsum("jk,jka,k->ja", mask, col_lin, qd)
+        sw, sv = b.s_w * qd[:, None], b.s_v * qd[:, None]
+        vel = sup @ jnp.concatenate([sw, sv], axis=1)
+        vw, vv = vel[:, :3], vel[:, 3:]
+        col_w = col_w + jnp.cross(vw, sw)  # v_k x_m (s_k qd_k)
+        col_v = col_v + jnp.cross(vw, sv) + jnp.cross(vv, sw)
     if qdd is not None:
-        acc_lin = acc_lin + jv @ qdd
-        acc_ang = acc_ang + jw @ qdd
-    force = k.m[:, None] * acc_lin + jnp.cross(acc_ang, k.ms)
-    moment = (k.j @ acc_ang[..., None])[..., 0] + jnp.cross(k.ms, acc_lin)
+        col_w = col_w + b.s_w * qdd[:, None]
+        col_v = col_v + b.s_v * qdd[:, None]
+    if qd is not None or qdd is not None:
+        acc = sup @ jnp.concatenate([col_w, col_v], axis=1)
+        acc_w, acc_v = acc_w + acc[:, :3], acc_v + acc[:, 3:]
+    fn, ff = _apply_inertia(b.m, b.h, b.j0, acc_w, acc_v)
     if qd is not None:
-        force = force + jnp.cross(w, jnp.cross(w, k.ms))
-        moment = moment + jnp.cross(w, (k.j @ w[..., None])[..., 0])
-    return jnp.einsum("jak,ja->k", jv, force) + jnp.einsum("jak,ja->k", jw, moment)
+        pn, pf = _apply_inertia(b.m, b.h, b.j0, vw, vv)
+        fn = fn + jnp.cross(vw, pn) + jnp.cross(vv, pf)  # v x* (M v)
+        ff = ff + jnp.cross(vw, pf)
+    sub = sup.T @ jnp.concatenate([fn, ff], axis=1)  # force transmitted by each joint
+    return jnp.sum(b.s_w * sub[:, :3] + b.s_v * sub[:, 3:], -1)
 
 
 def mass_matrix(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Array, "n n"]:
     """The inertia matrix ``A(q)`` of eq. (2), including rotor inertia ``I_a`` on the diagonal (eq. 18)."""
-    return _mass_matrix(model, _kinematics(model, jnp.asarray(q)))
+    return _mass_matrix(model, _bodies(model, jnp.asarray(q)))
 
 
 def bias_forces(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"]) -> Float[Array, " n"]:
     """``C(q, qd) qd + Q(q)`` (Coriolis, centrifugal and gravity torques; no friction)."""
-    return _wrench_torques(model, _kinematics(model, jnp.asarray(q)), jnp.asarray(qd), None, model.gravity)
+    return _rnea(model, _bodies(model, jnp.asarray(q)), jnp.asarray(qd), None, model.gravity)
 
 
 def coriolis_times_qdot(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"]) -> Float[Array, " n"]:
     """``C(q, qd) qd`` alone (no gravity); equals ``coriolis_matrix(model, q, qd) @ qd``."""
-    return _wrench_torques(model, _kinematics(model, jnp.asarray(q)), jnp.asarray(qd), None, None)
+    return _rnea(model, _bodies(model, jnp.asarray(q)), jnp.asarray(qd), None, None)
 
 
 def gravity_torques(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Array, " n"]:
-    """``Q(q) = dU/dq`` (eq. 5) as ``-sum_j J_Gj^T m_j g``."""
-    return _wrench_torques(model, _kinematics(model, jnp.asarray(q)), None, None, model.gravity)
+    """``Q(q) = dU/dq`` (eq. 5), as the joint torques holding the tree still against gravity."""
+    return _rnea(model, _bodies(model, jnp.asarray(q)), None, None, model.gravity)
 
 
 def friction_torques(model: TreeModel, qd: Float[ArrayLike, " n"], *,
@@ -141,7 +160,7 @@ def inverse_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Arra
                      qdd: Float[ArrayLike, " n"], *, smooth_friction: Optional[float] = None) -> Float[Array, " n"]:
     """``tau = A qdd + C qd + Q + Gamma_f`` (eqs. 3, 17, 18)."""
     qd, qdd = jnp.asarray(qd), jnp.asarray(qdd)
-    tau = _wrench_torques(model, _kinematics(model, jnp.asarray(q)), qd, qdd, model.gravity)
+    tau = _rnea(model, _bodies(model, jnp.asarray(q)), qd, qdd, model.gravity)
     if model.rotor_inertia is not None:
         tau = tau + model.rotor_inertia * qdd
     if model.viscous is not None or model.coulomb is not None:
@@ -157,8 +176,8 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Arra
     ``smooth_friction=eps`` replaces ``sign(qd)`` by ``tanh(qd / eps)`` (differentiable at ``qd = 0``).
     """
     qd, tau = jnp.asarray(qd), jnp.asarray(tau)
-    k = _kinematics(model, jnp.asarray(q))
-    rhs = tau - _wrench_torques(model, k, qd, None, model.gravity)
+    b = _bodies(model, jnp.asarray(q))
+    rhs = tau - _rnea(model, b, qd, None, model.gravity)
     if model.viscous is not None or model.coulomb is not None:
         rhs = rhs - friction_torques(model, qd, smooth_friction=smooth_friction)
-    return cho_solve(cho_factor(_mass_matrix(model, k)), rhs)
+    return cho_solve(cho_factor(_mass_matrix(model, b)), rhs)

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from ..errors import ModelError
-from ..spatial import axis_angle_to_matrix
+from ..spatial import unit_axis_rotations
 from .model import TreeModel
 
 __all__ = [
@@ -27,6 +27,16 @@ __all__ = [
 ]
 
 
+def _mm(a, b):
+    """3x3 matrix product as a broadcast sum: fuses with its neighbours on CPU (tiny ``dot`` ops do not)."""
+    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
+
+
+def _mv(a, x):
+    """3x3 matrix times 3-vector as a broadcast sum."""
+    return jnp.sum(a * x[..., None, :], axis=-1)
+
+
 def joint_transforms(model: TreeModel, q: Float[ArrayLike, " n"]):
     """Parent-from-child poses ``(R (n,3,3), p (n,3))`` of every joint at ``q`` (the report's ``^iT_j``), vectorised."""
     q = jnp.asarray(q)
@@ -34,13 +44,13 @@ def joint_transforms(model: TreeModel, q: Float[ArrayLike, " n"]):
     rev = model.is_revolute
     r0 = jnp.asarray(model.origin_rotation_array)
     if rev.all():
-        r = r0 @ axis_angle_to_matrix(jnp.asarray(ax), q)
+        r = _mm(r0, unit_axis_rotations(jnp.asarray(ax), q))
         p = model.origin_xyz
     else:
         angle = jnp.where(jnp.asarray(rev), q, 0.0)
         slide = jnp.where(jnp.asarray(rev), 0.0, q)
-        r = r0 @ axis_angle_to_matrix(jnp.asarray(ax), angle)
-        p = model.origin_xyz + (r0 @ (jnp.asarray(ax) * slide[:, None])[..., None])[..., 0]
+        r = _mm(r0, unit_axis_rotations(jnp.asarray(ax), angle))
+        p = model.origin_xyz + _mv(r0, jnp.asarray(ax) * slide[:, None])
     return r, p
 
 
@@ -53,8 +63,8 @@ def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
         if k < 0:
             rs[i], ps[i] = r_rel[i], p_rel[i]
         else:
-            rs[i] = rs[k] @ r_rel[i]
-            ps[i] = ps[k] + rs[k] @ p_rel[i]
+            rs[i] = _mm(rs[k], r_rel[i])
+            ps[i] = ps[k] + _mv(rs[k], p_rel[i])
     return jnp.stack(rs), jnp.stack(ps)
 
 
@@ -87,7 +97,7 @@ def link_velocities(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Array
 
 def world_axes(model: TreeModel, rot: Float[Array, "n 3 3"]) -> Float[Array, "n 3"]:
     """Joint axes in world coordinates, ``a_k = R_k e_k`` (the axis is fixed in the child link)."""
-    return (rot @ jnp.asarray(model.axes_array)[..., None])[..., 0]
+    return _mv(rot, jnp.asarray(model.axes_array))
 
 
 def link_jacobians(model: TreeModel, rot, pos) -> Float[Array, "n 6 n"]:
