@@ -102,7 +102,8 @@ def unit_axis_rotations(axes: Float[ArrayLike, "n 3"], angles: Float[ArrayLike, 
     a = jnp.asarray(axes)
     t = jnp.asarray(angles)[..., None, None]
     outer = a[..., :, None] * a[..., None, :]
-    return jnp.cos(t) * jnp.eye(3) + jnp.sin(t) * skew(a) + (1.0 - jnp.cos(t)) * outer
+    eye = jnp.broadcast_to(jnp.eye(3), outer.shape)
+    return jnp.cos(t) * eye + jnp.sin(t) * skew(a) + (1.0 - jnp.cos(t)) * outer
 
 
 def compose(pose_ab, pose_bc):

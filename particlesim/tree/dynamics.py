@@ -55,7 +55,7 @@ def _bodies(model: TreeModel, q) -> _Bodies:
     m, ms, j = split_params(model.inertia)
     hl = _mv(rot, ms)  # first moment about O_j, world axes
     jw = _mm(_mm(rot, j), jnp.swapaxes(rot, -1, -2))
-    eye = jnp.eye(3)
+    eye = jnp.eye(3)[None]
     pp = jnp.sum(pos * pos, -1)[:, None, None]
     ph = jnp.sum(pos * hl, -1)[:, None, None]
     outer_pp = pos[:, :, None] * pos[:, None, :]
