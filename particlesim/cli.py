@@ -1,4 +1,5 @@
-"""Command line: ``python -m particlesim.cli main`` runs the main job; ``particles`` the particle report alone."""
+"""Command line: ``python -m particlesim.cli main`` runs the main job (the particle report, then the Krang fall);
+``particles`` and ``krang`` run one of them."""
 
 from __future__ import annotations
 
@@ -27,13 +28,31 @@ def _particles(out: Path) -> None:
           f"in {time.perf_counter() - t0:.1f} s")
 
 
+def _krang(out: Path) -> None:
+    from .reports.krang_fall import krang_fall
+
+    print("\nKrang on fixed wheels (18 joints) falling under gravity for 2 s, against its MuJoCo C twin ...")
+    f = krang_fall(out, progress=True)
+    ours, mj = f["ours"], f["mujoco_c"]
+    print(f"  particlesim dopri5 (rtol 1e-10): {ours['accepted_steps']} steps, run {ours['run_s']:.2f} s "
+          f"(compile + first run {ours['compile_plus_first_run_s']:.1f} s)")
+    print(f"  MuJoCo C RK4 dt = {mj['dt']:g} s: run {mj['run_s']:.2f} s")
+    print(f"  max |q_ours - q_mujoco| over all joints and 2 s: {f['max_abs_joint_deviation_rad']:.2e} rad "
+          f"({f['joint_with_max_deviation']})")
+    print(f"  total energy {f['energy_start_J']:.3f} J -> {f['energy_end_J']:.3f} J (viscous friction "
+          f"{f['viscous_friction_Nms_per_rad']:g} N m s/rad on every joint)")
+    print(f"wrote {out / 'krang_fall.csv'}, {out / 'krang_fall.png'}, {out / 'krang_fall.json'}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="particlesim", description=__doc__)
-    parser.add_argument("job", nargs="?", default="main", choices=["main", "particles"])
+    parser.add_argument("job", nargs="?", default="main", choices=["main", "particles", "krang"])
     parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     args = parser.parse_args(argv)
     if args.job in ("main", "particles"):
         _particles(args.out)
+    if args.job in ("main", "krang"):
+        _krang(args.out)
     return 0
 
 
