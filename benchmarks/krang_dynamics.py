@@ -1,0 +1,209 @@
+"""Forward dynamics and rollouts of the 18-joint fixed-wheel Krang, float64, CPU: ours vs Pinocchio, MuJoCo, MJX.
+
+Run: ``python -m benchmarks.krang_dynamics``. Writes ``benchmarks/results/krang_dynamics.{json,csv,png}``.
+
+Rows (per state for batched rows, per step for fixed-step rollouts, per simulated second for ours):
+  ours forward_dynamics, one jitted call; ours vmapped over 1024 states; Pinocchio ABA per call;
+  MJX ``forward`` vmapped over 1024 states; MuJoCo C RK4 per step (dt 1e-4); MJX jitted RK4 rollout (scan) per
+  step; our jitted diffrax rollout per simulated second (Tsit5 at the default tolerances, Dopri8 at tight ones).
+Compile times are measured separately (``jit(...).lower(...).compile()``); run times are medians of repeats with
+``block_until_ready`` on the results. Issue targets: batched ≤ 1.0× ABA per state, single call ≤ 3× ABA,
+compile ≤ 5 s.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import particlesim  # noqa: F401  (float64)
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from particlesim.data import data_dir
+from particlesim.tree import forward_dynamics, load_urdf  # isort: skip  (tree before io: import order)
+from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
+from particlesim.simulate import simulate
+
+from ._common import RESULTS, environment, median_time, timed
+
+NAME = "krang_dynamics"
+URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
+GRAVITY = (0.0, -9.81, 0.0)
+BATCH = 1024
+DT = 1e-4
+
+
+def _compile(fn, *args):
+    t, compiled = timed(lambda: jax.jit(fn).lower(*args).compile())
+    return compiled, t
+
+
+def _row(name, seconds, unit, compile_s=None, note=""):
+    return {"name": name, "time_us": seconds * 1e6, "unit": unit, "compile_s": compile_s, "note": note}
+
+
+def run() -> dict:
+    path = data_dir() / URDF
+    model = load_urdf(path, gravity=GRAVITY)
+    n = model.nq
+    rng = np.random.default_rng(0)
+    qs, qds = rng.uniform(-np.pi, np.pi, (BATCH, n)), rng.normal(0.0, 1.0, (BATCH, n))
+    taus = rng.normal(0.0, 10.0, (BATCH, n))
+    jq, jqd, jtau = (jnp.asarray(x) for x in (qs, qds, taus))
+    rows = []
+
+    # Ours: one call, then 1024 states in one vmapped call.
+    single, c1 = _compile(forward_dynamics, model, jq[0], jqd[0], jtau[0])
+    t = median_time(lambda: single(model, jq[0], jqd[0], jtau[0]), number=200, block=jax.block_until_ready)
+    rows.append(_row("ours forward_dynamics (1 call, jit, model as argument)", t, "per call", c1))
+    # The same with the model closed over (a constant of the compiled function): no pytree flattening per call.
+    closed, c1b = _compile(lambda q, qd, tau: forward_dynamics(model, q, qd, tau), jq[0], jqd[0], jtau[0])
+    t = median_time(lambda: closed(jq[0], jqd[0], jtau[0]), number=200, block=jax.block_until_ready)
+    rows.append(_row("ours forward_dynamics (1 call, jit, model closed over)", t, "per call", c1b))
+    batched, c2 = _compile(jax.vmap(forward_dynamics, in_axes=(None, 0, 0, 0)), model, jq, jqd, jtau)
+    t = median_time(lambda: batched(model, jq, jqd, jtau), number=5, block=jax.block_until_ready)
+    rows.append(_row(f"ours forward_dynamics (vmap {BATCH})", t / BATCH, "per state", c2))
+
+    # Pinocchio ABA.
+    import pinocchio as pin
+
+    pm = pin.buildModelFromXML(urdf_for_mujoco(path))
+    pm.gravity.linear = np.asarray(GRAVITY)
+    pdata = pm.createData()
+    assert list(pm.names[1:]) == list(model.joint_names)
+
+    def aba_all():
+        for k in range(BATCH):
+            pin.aba(pm, pdata, qs[k], qds[k], taus[k])
+
+    t_aba = median_time(aba_all, number=1) / BATCH
+    rows.append(_row("Pinocchio ABA (C++)", t_aba, "per call"))
+    def rel_err(k):
+        ref = pin.aba(pm, pdata, qs[k], qds[k], taus[k])
+        return float(np.max(np.abs(ref - np.asarray(single(model, jq[k], jqd[k], jtau[k])))) / np.max(np.abs(ref)))
+
+    err = max(rel_err(k) for k in range(16))
+
+    # MJX forward, vmapped.
+    from mujoco import mjx
+
+    m = mujoco_model(path, timestep=DT, integrator="rk4")
+    jm = JointMap(m, model.joint_names)
+    mx = mjx_model(m)
+    d0 = mjx.put_data(m, mujoco.MjData(m))
+    mq, mqd, mtau = (jnp.asarray(jm.to_mujoco(x)) for x in (qs, qds, taus))
+
+    def mjx_fd(q, qd, tau):
+        return mjx.forward(mx, d0.replace(qpos=q, qvel=qd, qfrc_applied=tau)).qacc
+
+    mjx_b, c3 = _compile(jax.vmap(mjx_fd), mq, mqd, mtau)
+    t = median_time(lambda: mjx_b(mq, mqd, mtau), number=2, block=jax.block_until_ready)
+    rows.append(_row(f"MJX forward (vmap {BATCH})", t / BATCH, "per state", c3))
+
+    # MuJoCo C, RK4 steps.
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = mq[0], mqd[0]
+
+    def c_steps():
+        for _ in range(1000):
+            mujoco.mj_step(m, d)
+
+    t = median_time(c_steps, number=1, repeat=5) / 1000
+    rows.append(_row(f"MuJoCo C RK4 step (dt {DT:g})", t, "per step"))
+
+    # MJX jitted RK4 rollout (scan); one forward first (x64 field types settle).
+    steps = 1000
+    dstart = mjx.forward(mx, d0.replace(qpos=mq[0], qvel=mqd[0]))
+
+    def mjx_roll(dd):
+        return jax.lax.scan(lambda c, _: (mjx.step(mx, c), None), dd, None, length=steps)[0].qpos
+
+    roll, c4 = _compile(mjx_roll, dstart)
+    t = median_time(lambda: roll(dstart), number=1, repeat=3, block=jax.block_until_ready) / steps
+    rows.append(_row("MJX RK4 rollout (jit scan)", t, "per step", c4))
+
+    # Ours: diffrax rollouts of 1 s (falling from a random pose, no input).
+    q0, qd0 = jnp.asarray(0.5 * rng.uniform(-1, 1, n)), jnp.zeros(n)
+    dyn = lambda p, q, qd, tau: forward_dynamics(p, q, qd, tau)  # noqa: E731
+    for solver, rtol, atol in (("tsit5", 1e-8, 1e-10), ("dopri8", 1e-12, 1e-12)):
+        def ours_roll(q0, qd0, solver=solver, rtol=rtol, atol=atol):
+            s = simulate(dyn, model, q0, qd0, 0.0, 1.0, solver=solver, rtol=rtol, atol=atol)
+            return s.q[-1], s.steps
+
+        roll_o, c5 = _compile(ours_roll, q0, qd0)
+        t = median_time(lambda: roll_o(q0, qd0), number=1, repeat=3, block=jax.block_until_ready)
+        nsteps = int(roll_o(q0, qd0)[1])
+        rows.append(_row(f"ours rollout {solver} rtol {rtol:g}", t, "per simulated s", c5, f"{nsteps} steps"))
+
+    for r in rows:
+        r["ratio_vs_aba"] = r["time_us"] / (t_aba * 1e6) if r["unit"] in ("per call", "per state") else None
+    return {
+        "benchmark": NAME,
+        "model": f"{URDF} ({n} joints), float64",
+        "environment": environment(),
+        "rows": rows,
+        "checks": {"max_rel_qdd_diff_ours_vs_pinocchio": err},
+        "targets": {"batched_vs_aba": 1.0, "single_vs_aba": 3.0, "compile_s": 5.0},
+    }
+
+
+def write(results: dict) -> None:
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f"{NAME}.json").write_text(json.dumps(results, indent=2) + "\n")
+    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["name", "time_us", "unit", "ratio_vs_aba", "compile_s", "note"])
+        w.writeheader()
+        w.writerows(results["rows"])
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = results["rows"]
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    ax.barh([f"{r['name']}\n({r['unit']})" for r in rows], [r["time_us"] for r in rows], color="tab:blue")
+    ax.set_xscale("log")
+    ax.set_xlabel("time [µs] (log)")
+    ax.invert_yaxis()
+    ax.set_title(f"Krang fixed-wheel, float64, {results['environment']['cpu']}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(RESULTS / f"{NAME}.png", dpi=120)
+    plt.close(fig)
+
+
+def markdown(results: dict) -> str:
+    env = results["environment"]
+    v = env["versions"]
+    lines = [
+        f"### Krang dynamics ({results['model']})",
+        "",
+        f"{env['cpu']}, {env['cpu_count']} cores, {env['date']}; jax {v['jax']}, mujoco {v['mujoco']}, "
+        f"mjx {v['mujoco-mjx']}, pinocchio {v['pin']}, numpy {v['numpy']}.",
+        "",
+        "| what | time | unit | × Pinocchio ABA | compile |",
+        "|---|---:|---|---:|---:|",
+    ]
+    for r in results["rows"]:
+        ratio = "" if r["ratio_vs_aba"] is None else f"{r['ratio_vs_aba']:.2f}"
+        comp = "" if r["compile_s"] is None else f"{r['compile_s']:.1f} s"
+        t = f"{r['time_us']:.2f} µs" if r["time_us"] < 1e4 else f"{r['time_us'] / 1e3:.1f} ms"
+        note = f" ({r['note']})" if r["note"] else ""
+        lines.append(f"| {r['name']}{note} | {t} | {r['unit']} | {ratio} | {comp} |")
+    lines += ["", f"Targets: batched ≤ 1.0× ABA per state, single call ≤ 3× ABA, compile ≤ 5 s. "
+              f"Max |q̈ ours − ABA| / max |q̈| over 16 states = {results['checks']['max_rel_qdd_diff_ours_vs_pinocchio']:.1e}.", ""]
+    return "\n".join(lines)
+
+
+def main() -> dict:
+    print(f"devices: {jax.devices()}")
+    results = run()
+    write(results)
+    print(markdown(results))
+    return results
+
+
+if __name__ == "__main__":
+    main()
