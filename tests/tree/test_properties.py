@@ -1,0 +1,91 @@
+"""Structural properties of A, C, Q against autodiff of the energies (eqs. 4, 11, 15) and exact identities."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from particlesim.tree import (
+    bias_forces,
+    coriolis_matrix,
+    coriolis_times_qdot,
+    forward_dynamics,
+    gravity_torques,
+    inverse_dynamics,
+    kinetic_energy,
+    link_jacobian,
+    link_poses,
+    mass_matrix,
+    potential_energy,
+)
+from tree_helpers import max_rel
+
+#: Identities that hold exactly in exact arithmetic, compared in float64.
+EXACT_RTOL = 1e-11
+SEEDS = [0, 1, 2]
+
+
+def _state(model, seed):
+    rng = np.random.default_rng(seed)
+    return (jnp.asarray(rng.uniform(-2, 2, model.nq)), jnp.asarray(rng.normal(size=model.nq)),
+            jnp.asarray(rng.normal(size=model.nq)))
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_mass_matrix_symmetric_positive_definite(small_tree, seed):
+    q, _, _ = _state(small_tree, seed)
+    a = np.asarray(mass_matrix(small_tree, q))
+    assert np.array_equal(a, a.T)
+    assert np.linalg.eigvalsh(a).min() > 0.0
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_mass_matrix_is_hessian_of_kinetic_energy(small_tree, seed):
+    q, qd, _ = _state(small_tree, seed)
+    h = jax.hessian(lambda v: kinetic_energy(small_tree, q, v))(qd)
+    assert max_rel(mass_matrix(small_tree, q), h) <= EXACT_RTOL
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_bias_forces_equal_lagrange_equations(small_tree, seed):
+    """``C qd + Q = d/dt dE/dqd - dE/dq + dU/dq`` at ``qdd = 0`` (eq. 1), every term by autodiff of eqs. 11, 15."""
+    q, qd, _ = _state(small_tree, seed)
+    de_dqd = lambda x: jax.grad(kinetic_energy, argnums=2)(small_tree, x, qd)  # noqa: E731
+    ddt = jax.jvp(de_dqd, (q,), (qd,))[1]
+    de_dq = jax.grad(kinetic_energy, argnums=1)(small_tree, q, qd)
+    du_dq = jax.grad(potential_energy, argnums=1)(small_tree, q)
+    assert max_rel(gravity_torques(small_tree, q), du_dq) <= EXACT_RTOL
+    assert max_rel(coriolis_times_qdot(small_tree, q, qd), ddt - de_dq) <= EXACT_RTOL
+    assert max_rel(bias_forces(small_tree, q, qd), ddt - de_dq + du_dq) <= EXACT_RTOL
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_christoffel_coriolis(small_tree, seed):
+    """``C`` of eq. (4): ``C qd`` equals the fast term and ``Adot - 2 C`` is skew-symmetric."""
+    q, qd, _ = _state(small_tree, seed)
+    c = coriolis_matrix(small_tree, q, qd)
+    assert max_rel(c @ qd, coriolis_times_qdot(small_tree, q, qd)) <= EXACT_RTOL
+    adot = jax.jvp(lambda x: mass_matrix(small_tree, x), (q,), (qd,))[1]
+    n = adot - 2.0 * c
+    assert np.max(np.abs(n + n.T)) <= EXACT_RTOL * np.max(np.abs(n))
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_forward_inverse_round_trip(small_tree, seed):
+    q, qd, tau = _state(small_tree, seed)
+    for eps in (None, 0.05):
+        qdd = forward_dynamics(small_tree, q, qd, tau, smooth_friction=eps)
+        assert max_rel(inverse_dynamics(small_tree, q, qd, qdd, smooth_friction=eps), tau) <= EXACT_RTOL
+
+
+def test_jacobian_matches_differentiated_poses(small_tree):
+    """Linear rows: d p_j / dq; angular rows: ``skew(w) = Rdot R^T`` (independent of the Jacobian formula)."""
+    q, qd, _ = _state(small_tree, 5)
+    for j in range(small_tree.nq):
+        (r, p), (rdot, pdot) = jax.jvp(lambda x: tuple(a[j] for a in link_poses(small_tree, x)), (q,), (qd,))
+        w_hat = rdot @ r.T
+        w = jnp.array([w_hat[2, 1], w_hat[0, 2], w_hat[1, 0]])
+        jac = link_jacobian(small_tree, q, j)
+        assert max_rel(jac @ qd, jnp.concatenate([pdot, w])) <= EXACT_RTOL
+        local = link_jacobian(small_tree, q, j, frame="local")
+        assert max_rel(local @ qd, jnp.concatenate([r.T @ pdot, r.T @ w])) <= EXACT_RTOL
