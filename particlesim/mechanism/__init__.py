@@ -1,0 +1,31 @@
+"""Mechanisms in particle Cartesian coordinates (Attia): bodies as equivalent particles, joints as shared
+particles, loops closed by cut-joint constraints, force elements, and their simulation."""
+
+from .builder import MechanismBuilder
+from .constraints import constraint_gamma, constraint_jacobian, constraint_labels, constraints, velocity_constraints
+from .dynamics import accelerations, accelerations_and_multipliers, kinetic_energy, residuals, total_energy
+from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
+from .integrate import ProjectedSolver, project, simulate_mechanism
+from .model import Mechanism
+
+__all__ = [
+    "Mechanism",
+    "MechanismBuilder",
+    "constraints",
+    "constraint_jacobian",
+    "constraint_gamma",
+    "constraint_labels",
+    "velocity_constraints",
+    "accelerations",
+    "accelerations_and_multipliers",
+    "kinetic_energy",
+    "potential_energy",
+    "total_energy",
+    "residuals",
+    "generalized_forces",
+    "spring_lengths",
+    "body_angular_velocity",
+    "project",
+    "ProjectedSolver",
+    "simulate_mechanism",
+]
