@@ -30,6 +30,7 @@ __all__ = [
     "second_moment_from_inertia",
     "inertia_from_second_moment",
     "check_inertia",
+    "rotate_origin_params",
     "PHYSICAL_RTOL",
 ]
 
@@ -65,6 +66,19 @@ def inertia_from_second_moment(s) -> Float[Array, "3 3"]:
     """``I = tr(S) E - S``."""
     s = jnp.asarray(s)
     return jnp.trace(s) * jnp.eye(3) - s
+
+
+def rotate_origin_params(params, rotation) -> Float[Array, "... 10"]:
+    """Re-express origin 10-vectors ``[m, m c, XX, XY, XZ, YY, YZ, ZZ]`` (frame b) in frame a with the same origin,
+    ``rotation = R_ab``: ``m c -> R m c``, ``J -> R J R^T``."""
+    p = jnp.asarray(params)
+    r = jnp.asarray(rotation)
+    xx, xy, xz, yy, yz, zz = (p[..., k] for k in range(4, 10))
+    j = jnp.stack([jnp.stack([xx, xy, xz], -1), jnp.stack([xy, yy, yz], -1), jnp.stack([xz, yz, zz], -1)], -2)
+    j = r @ j @ jnp.swapaxes(r, -1, -2)
+    ms = (r @ p[..., 1:4, None])[..., 0]
+    six = jnp.stack([j[..., 0, 0], j[..., 0, 1], j[..., 0, 2], j[..., 1, 1], j[..., 1, 2], j[..., 2, 2]], -1)
+    return jnp.concatenate([p[..., :1], ms, six], -1)
 
 
 def _is_concrete(*xs) -> bool:
