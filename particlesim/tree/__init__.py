@@ -9,7 +9,6 @@ Batching over parameter sets::
     jax.vmap(forward_dynamics, in_axes=(0, None, None, None))(batch, q, qd, tau)
 """
 
-from ..io.urdf import load_urdf
 from .coriolis import christoffel_symbols, coriolis_matrix
 from .dynamics import (
     bias_forces,
@@ -47,3 +46,13 @@ __all__ = [
     "link_jacobians",
     "wrench_torques",
 ]
+
+
+def __getattr__(name):
+    # ``load_urdf`` lives in ``particlesim.io.urdf``, which imports this package: resolve it lazily so that
+    # ``import particlesim.io`` and ``import particlesim.tree`` work in either order.
+    if name == "load_urdf":
+        from ..io.urdf import load_urdf
+
+        return load_urdf
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
