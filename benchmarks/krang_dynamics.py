@@ -63,6 +63,17 @@ def run() -> dict:
     closed, c1b = _compile(lambda q, qd, tau: forward_dynamics(model, q, qd, tau), jq[0], jqd[0], jtau[0])
     t = median_time(lambda: closed(jq[0], jqd[0], jtau[0]), number=200, block=jax.block_until_ready)
     rows.append(_row("ours forward_dynamics (1 call, jit, model closed over)", t, "per call", c1b))
+    # Compute cost without per-call dispatch: 1000 dependent evaluations inside one compiled scan.
+    def chain(q, qd, tau):
+        step = lambda q, _: (q + 1e-9 * forward_dynamics(model, q, qd, tau), None)  # noqa: E731
+        return jax.lax.scan(step, q, None, length=1000)[0]
+
+    chained, _ = _compile(chain, jq[0], jqd[0], jtau[0])
+    t = median_time(lambda: chained(jq[0], jqd[0], jtau[0]), number=1, block=jax.block_until_ready) / 1000
+    rows.append(_row("ours forward_dynamics (in a compiled scan, no dispatch)", t, "per call"))
+    floor, _ = _compile(lambda q: q + 1.0, jq[0])
+    t = median_time(lambda: floor(jq[0]), number=200, block=jax.block_until_ready)
+    rows.append(_row("jit dispatch floor (q + 1, for reference)", t, "per call"))
     batched, c2 = _compile(jax.vmap(forward_dynamics, in_axes=(None, 0, 0, 0)), model, jq, jqd, jtau)
     t = median_time(lambda: batched(model, jq, jqd, jtau), number=5, block=jax.block_until_ready)
     rows.append(_row(f"ours forward_dynamics (vmap {BATCH})", t / BATCH, "per state", c2))
