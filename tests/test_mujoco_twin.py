@@ -12,8 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-# particlesim.tree before particlesim.io: io/__init__ imports io.urdf, which imports the tree package.
-from particlesim.tree import (  # isort: skip
+from particlesim.tree import (
     bias_forces,
     forward_dynamics,
     kinetic_energy,
@@ -21,7 +20,7 @@ from particlesim.tree import (  # isort: skip
     mass_matrix,
     potential_energy,
 )
-from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco  # isort: skip
+from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
 from particlesim.simulate import simulate
 
 GRAVITY = (0.0, -9.81, 0.0)
