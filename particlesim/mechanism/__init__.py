@@ -3,7 +3,7 @@ particles, loops closed by cut-joint constraints, force elements, and their simu
 
 from .builder import MechanismBuilder
 from .constraints import constraint_gamma, constraint_jacobian, constraint_labels, constraints, velocity_constraints
-from .dynamics import accelerations, accelerations_and_multipliers, kinetic_energy, residuals, total_energy
+from .dynamics import mass_properties, accelerations, accelerations_and_multipliers, kinetic_energy, residuals, total_energy
 from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
 from .integrate import ProjectedSolver, project, simulate_mechanism
 from .model import Mechanism
@@ -16,6 +16,7 @@ __all__ = [
     "constraint_gamma",
     "constraint_labels",
     "velocity_constraints",
+    "mass_properties",
     "accelerations",
     "accelerations_and_multipliers",
     "kinetic_energy",

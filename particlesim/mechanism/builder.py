@@ -151,6 +151,7 @@ class MechanismBuilder:
 
         bodies, masses, coms, inertias, prims, distance = [], [], [], [], [], []
         lengths = []
+        seen: set = set()
         for name, inertia, primaries, (rot, origin), on_negative in self._bodies:
             ids = tuple(idx(p, f"body '{name}'") for p in primaries)
             rot = np.asarray(rot, dtype=float)
@@ -166,6 +167,10 @@ class MechanismBuilder:
             prims.append(jnp.asarray(local))
             for a in range(len(ids)):
                 for b in range(a + 1, len(ids)):
+                    pair = frozenset((ids[a], ids[b]))
+                    if pair in seen:  # two shared particles (a revolute joint): one constraint for both bodies
+                        continue
+                    seen.add(pair)
                     if not (is_ground[ids[a]] and is_ground[ids[b]]):
                         distance.append((ids[a], ids[b], f"body '{name}' distance {primaries[a]}-{primaries[b]}"))
                         lengths.append(np.linalg.norm(pos[ids[a]] - pos[ids[b]]))

@@ -54,8 +54,8 @@ def constraints(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " C"]:
         i = np.asarray([p[0] for p in mech.coincide_pairs])
         j = np.asarray([p[1] for p in mech.coincide_pairs])
         rows.append((r[i] - r[j]).reshape(-1))
-    for k in range(len(mech.prismatics)):
-        rows.append(_prismatic_rows(mech, r, k))
+    if mech.prismatics:
+        rows.append(_prismatic_all(mech, r))
     if not rows:
         return jnp.zeros((0,), dtype=x.dtype)
     return jnp.concatenate(rows)
@@ -71,9 +71,57 @@ def constraint_labels(mech: Mechanism) -> list[str]:
     return out
 
 
+def _pair_index(pairs):
+    return np.asarray([p[0] for p in pairs], dtype=int), np.asarray([p[1] for p in pairs], dtype=int)
+
+
+def _free_columns(mech: Mechanism) -> np.ndarray:
+    """For every particle, the column of its x-coordinate in ``x`` (-1 for ground particles)."""
+    col = -np.ones(len(mech.particle_names), dtype=int)
+    col[np.asarray(mech.free, dtype=int)] = 3 * np.arange(len(mech.free))
+    return col
+
+
+def _scatter_rows(rows: int, parts, n_coords: int) -> Array:
+    """Assemble ``(R, n_coords)`` from per-row 3-blocks ``parts = [(particle_cols, blocks (R, 3)), ...]``, in one
+    scatter; ground particles (column -1) are dropped."""
+    r_idx, c_idx, vals = [], [], []
+    for cols, block in parts:
+        keep = np.flatnonzero(cols >= 0)
+        if keep.size == 0:
+            continue
+        r_idx.append(np.repeat(keep, 3))
+        c_idx.append((cols[keep][:, None] + np.arange(3)[None, :]).reshape(-1))
+        vals.append(block[keep].reshape(-1))
+    out = jnp.zeros((rows, n_coords))
+    if not vals:
+        return out
+    return out.at[np.concatenate(r_idx), np.concatenate(c_idx)].add(jnp.concatenate(vals))
+
+
 def constraint_jacobian(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, "C 3F"]:
-    """``J = d constraints / dx``."""
-    return jax.jacfwd(lambda y: constraints(mech, y))(x)
+    """``J = d constraints / dx``: closed form for distances and coincidences, forward-mode for prismatic rows."""
+    r = mech.all_positions(x)
+    col = _free_columns(mech)
+    n = mech.n_coords
+    blocks = []
+    if mech.distance_pairs:
+        i, j = _pair_index(mech.distance_pairs)
+        d = r[i] - r[j]
+        blocks.append(_scatter_rows(len(i), [(col[i], d), (col[j], -d)], n))
+    if mech.coincide_pairs:
+        i, j = _pair_index(mech.coincide_pairs)
+        eye = jnp.tile(jnp.eye(3), (len(i), 1))
+        blocks.append(_scatter_rows(3 * len(i), [(np.repeat(col[i], 3), eye), (np.repeat(col[j], 3), -eye)], n))
+    if mech.prismatics:
+        blocks.append(jax.jacfwd(lambda y: _prismatic_all(mech, mech.all_positions(y)))(x))
+    if not blocks:
+        return jnp.zeros((0, n), dtype=x.dtype)
+    return jnp.concatenate(blocks, axis=0)
+
+
+def _prismatic_all(mech: Mechanism, r) -> Array:
+    return jnp.concatenate([_prismatic_rows(mech, r, k) for k in range(len(mech.prismatics))])
 
 
 def velocity_constraints(mech: Mechanism, x, xd) -> Float[Array, " C"]:
@@ -82,5 +130,21 @@ def velocity_constraints(mech: Mechanism, x, xd) -> Float[Array, " C"]:
 
 
 def constraint_gamma(mech: Mechanism, x, xd) -> Float[Array, " C"]:
-    """Right-hand side of ``J xdd = gamma``: ``gamma = -xd^T (d^2 constraints / dx^2) xd``."""
-    return -jax.jvp(lambda y: velocity_constraints(mech, y, xd), (x,), (xd,))[1]
+    """Right-hand side of ``J xdd = gamma``: ``gamma = -xd^T (d^2 constraints / dx^2) xd`` (closed form for
+    distances, ``-|v_i - v_j|^2``; zero for coincidences; forward-mode twice for prismatic rows)."""
+    v = mech.all_positions(xd) * jnp.asarray(_free_columns(mech) >= 0, dtype=xd.dtype)[:, None]
+    parts = []
+    if mech.distance_pairs:
+        i, j = _pair_index(mech.distance_pairs)
+        dv = v[i] - v[j]
+        parts.append(-jnp.sum(dv * dv, axis=1))
+    if mech.coincide_pairs:
+        parts.append(jnp.zeros(3 * len(mech.coincide_pairs), dtype=x.dtype))
+    if mech.prismatics:
+        def rows(y):
+            return _prismatic_all(mech, mech.all_positions(y))
+
+        parts.append(-jax.jvp(lambda y: jax.jvp(rows, (y,), (xd,))[1], (x,), (xd,))[1])
+    if not parts:
+        return jnp.zeros((0,), dtype=x.dtype)
+    return jnp.concatenate(parts)

@@ -22,23 +22,29 @@ from .constraints import constraint_gamma, constraint_jacobian, constraints, vel
 from .forces import generalized_forces, potential_energy
 from .model import Mechanism
 
-__all__ = ["accelerations", "accelerations_and_multipliers", "kinetic_energy", "total_energy", "residuals"]
+__all__ = ["mass_properties", "accelerations", "accelerations_and_multipliers", "kinetic_energy", "total_energy", "residuals"]
+
+
+def mass_properties(mech: Mechanism) -> tuple[Array, Array]:
+    """``(M, m_bar)``: the constant mass matrix of the free coordinates and the lumped particle masses. They
+    depend on the parameters only, so a simulation computes them once (pass them as ``props``)."""
+    return mech.mass_matrix(), mech.lumped_masses()
 
 
 def accelerations_and_multipliers(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"],
-                                  *, baumgarte: float = 0.0) -> tuple[Array, Array]:
-    """Solve the saddle-point system for ``(xdd, lam)``.
+                                  *, baumgarte: float = 0.0, props=None) -> tuple[Array, Array]:
+    """Solve the saddle-point system for ``(xdd, lam)``; ``props`` as from :func:`mass_properties`.
 
     ``baumgarte`` (a rate ``a`` in 1/s, default 0) adds ``-2 a J xd - a^2 Phi`` to ``gamma`` so that drift decays
     critically damped; with the per-step projection of :func:`~particlesim.mechanism.simulate_mechanism` it is not
     needed.
     """
-    m = mech.mass_matrix()
+    m, lumped = mass_properties(mech) if props is None else props
     j = constraint_jacobian(mech, x)
     gamma = constraint_gamma(mech, x, xd)
     if baumgarte:
         gamma = gamma - 2.0 * baumgarte * velocity_constraints(mech, x, xd) - baumgarte**2 * constraints(mech, x)
-    q = generalized_forces(mech, t, x, xd)
+    q = generalized_forces(mech, t, x, xd, lumped=lumped)
     n, c = m.shape[0], j.shape[0]
     kkt = jnp.block([[m, j.T], [j, jnp.zeros((c, c), dtype=m.dtype)]])
     sol = jnp.linalg.solve(kkt, jnp.concatenate([q, gamma]))
@@ -46,9 +52,9 @@ def accelerations_and_multipliers(mech: Mechanism, t, x: Float[Array, " 3F"], xd
 
 
 def accelerations(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"], *,
-                  baumgarte: float = 0.0) -> Float[Array, " 3F"]:
+                  baumgarte: float = 0.0, props=None) -> Float[Array, " 3F"]:
     """Particle accelerations ``xdd`` (see :func:`accelerations_and_multipliers`)."""
-    return accelerations_and_multipliers(mech, t, x, xd, baumgarte=baumgarte)[0]
+    return accelerations_and_multipliers(mech, t, x, xd, baumgarte=baumgarte, props=props)[0]
 
 
 def kinetic_energy(mech: Mechanism, xd: Float[Array, " 3F"]) -> Float[Array, ""]:

@@ -40,10 +40,14 @@ def body_angular_velocity(mech: Mechanism, b: int, x, xd) -> Float[Array, "3"]:
     return unskew(fd @ f.T)
 
 
-def generalized_forces(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"]) -> Float[Array, " 3F"]:
-    """Gravity + spring-dampers + tyres + applied forces and torques, as forces on the free coordinates."""
+def generalized_forces(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"], *,
+                       lumped=None) -> Float[Array, " 3F"]:
+    """Gravity + spring-dampers + tyres + applied forces and torques, as forces on the free coordinates.
+
+    ``lumped``: the particle masses ``m_bar`` if already computed (:func:`~.dynamics.mass_properties`)."""
     free = np.asarray(mech.free, dtype=int)
-    q = (mech.lumped_masses()[free][:, None] * mech.gravity[None, :]).reshape(-1)
+    lumped = mech.lumped_masses() if lumped is None else lumped
+    q = (lumped[free][:, None] * mech.gravity[None, :]).reshape(-1)
     for s in mech.springs:
         def length(y, s=s):
             return jnp.linalg.norm(_point(mech, s.a)(y) - _point(mech, s.b)(y))

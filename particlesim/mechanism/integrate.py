@@ -21,7 +21,7 @@ import numpy as np
 
 from ..simulate import SOLVERS, Solution
 from .constraints import constraint_jacobian, constraints
-from .dynamics import accelerations
+from .dynamics import accelerations, mass_properties
 from .model import Mechanism
 
 __all__ = ["ProjectedSolver", "project", "simulate_mechanism"]
@@ -80,8 +80,8 @@ class ProjectedSolver(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSol
         return self.solver.func(terms, t0, y0, args)
 
 
-def _project_y(y, mech):
-    return project(mech, *y)
+def _project_y(y, args):
+    return project(args[0], *y)
 
 
 def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver: str = "tsit5",
@@ -105,9 +105,10 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
         if not isinstance(v, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(v))):
             raise ValueError(f"{name} is not finite")
 
-    def field(t, y, m):
+    def field(t, y, args):
+        m, props = args
         x, xd = y
-        return xd, accelerations(m, t, x, xd, baumgarte=baumgarte)
+        return xd, accelerations(m, t, x, xd, baumgarte=baumgarte, props=props)
 
     inner = SOLVERS[solver.lower()]()
     slv = ProjectedSolver(inner, _project_y) if stabilise else inner
@@ -116,7 +117,7 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
     controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=pid[0], icoeff=pid[1], dcoeff=pid[2])
     saveat = diffrax.SaveAt(t0=True, t1=True) if saveat_ts is None else diffrax.SaveAt(ts=jnp.asarray(saveat_ts))
     sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(field), slv, t0=t0, t1=t1, dt0=dt0, y0=(x0, xd0), args=mech, saveat=saveat,
+        diffrax.ODETerm(field), slv, t0=t0, t1=t1, dt0=dt0, y0=(x0, xd0), args=(mech, mass_properties(mech)), saveat=saveat,
         stepsize_controller=controller, max_steps=max_steps, throw=throw,
         adjoint=adjoint if adjoint is not None else diffrax.RecursiveCheckpointAdjoint(),
         progress_meter=diffrax.TqdmProgressMeter() if progress else diffrax.NoProgressMeter())

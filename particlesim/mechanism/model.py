@@ -21,6 +21,7 @@ from __future__ import annotations
 from typing import Callable
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -145,19 +146,33 @@ class Mechanism(eqx.Module):
                                      self.body_primaries[b])
 
     def scalar_mass_matrix(self) -> Float[Array, "P P"]:
-        """``sum_b B_b^T diag(m_b) B_b`` scattered on all particles (B maps primaries to all nodes)."""
+        """``sum_b B_b^T diag(m_b) B_b`` scattered on all particles (B maps primaries to all nodes).
+
+        Bodies of one kind are solved together (one vmapped mass solve per kind) and scattered in one add.
+        """
         n = len(self.particle_names)
-        m_s = jnp.zeros((n, n))
-        for b, spec in enumerate(self.bodies):
-            k = len(spec.primaries)
-            pairs = PAIRS[spec.kind]
+        rows, cols, vals = [], [], []
+        for kind in ("spatial", "planar", "rod"):
+            ids = [b for b, spec in enumerate(self.bodies) if spec.kind == kind]
+            if not ids:
+                continue
+            k = len(self.bodies[ids[0]].primaries)
+            pairs = PAIRS[kind]
             incidence = np.zeros((k + len(pairs), k))
             incidence[:k] = np.eye(k)
             for row, (i, j) in enumerate(pairs):
                 incidence[k + row, [i, j]] = 0.5
-            mb = incidence.T @ (self.particle_masses(b)[:, None] * incidence)
-            idx = np.asarray(spec.primaries)
-            m_s = m_s.at[np.ix_(idx, idx)].add(mb)
+            masses = jax.vmap(solve_particle_masses)(
+                jnp.stack([self.body_mass[b] for b in ids]), jnp.stack([self.body_com[b] for b in ids]),
+                jnp.stack([self.body_inertia[b] for b in ids]), jnp.stack([self.body_primaries[b] for b in ids]))
+            blocks = jnp.einsum("ni,bn,nj->bij", incidence, masses, incidence)  # (B, k, k)
+            prim = np.asarray([self.bodies[b].primaries for b in ids])  # (B, k)
+            rows.append(np.repeat(prim, k, axis=1).reshape(-1))
+            cols.append(np.tile(prim, (1, k)).reshape(-1))
+            vals.append(blocks.reshape(-1))
+        m_s = jnp.zeros((n, n))
+        if vals:
+            m_s = m_s.at[np.concatenate(rows), np.concatenate(cols)].add(jnp.concatenate(vals))
         return m_s
 
     def mass_matrix(self) -> Float[Array, "3F 3F"]:
