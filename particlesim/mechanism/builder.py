@@ -246,7 +246,7 @@ class MechanismBuilder:
             nrm = np.linalg.norm(normal)
             if not np.isfinite(nrm) or nrm == 0:
                 raise ModelError(f"tyre '{name}': normal must be a non-zero vector")
-            tyres.append(TyreSpec(name=name, point=pidx(pt, f"tyre '{name}'"), normal=tuple(normal / nrm),
+            tyres.append(TyreSpec(name=name, point=pidx(pt, f"tyre '{name}'"), normal=tuple(float(v) for v in normal / nrm),
                                   stiffness=jnp.asarray(k, dtype=float), damping=jnp.asarray(c, dtype=float),
                                   radius=jnp.asarray(radius, dtype=float), ground=jnp.asarray(ground, dtype=float)))
         applied = []

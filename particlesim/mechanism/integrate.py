@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..simulate import SOLVERS, Solution
+from ..simulate import IMPLICIT_SOLVERS, SOLVERS, Solution
 from .constraints import constraint_jacobian, constraints
 from .dynamics import accelerations, mass_properties
 from .model import Mechanism
@@ -68,6 +68,14 @@ class ProjectedSolver(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSol
     def strong_order(self, terms):
         return self.solver.strong_order(terms)
 
+    @property
+    def scan_kind(self):  # diffrax's adjoints ask Runge-Kutta solvers (and their wrappers) for it
+        return self.solver.scan_kind
+
+    @property
+    def root_finder(self):  # diffrax asks implicit solvers (and their wrappers) for it
+        return self.solver.root_finder
+
     def init(self, terms, t0, t1, y0, args):
         return self.solver.init(terms, t0, t1, y0, args)
 
@@ -110,11 +118,16 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
         x, xd = y
         return xd, accelerations(m, t, x, xd, baumgarte=baumgarte, props=props)
 
-    inner = SOLVERS[solver.lower()]()
-    slv = ProjectedSolver(inner, _project_y) if stabilise else inner
-    implicit = solver.lower().startswith("kvaerno")
+    implicit = solver.lower() in IMPLICIT_SOLVERS
     pid = (0.3, 0.3, 0.0) if implicit else (0.4, 1.0, 0.0)
     controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=pid[0], icoeff=pid[1], dcoeff=pid[2])
+    # Settings diffrax would patch into an unwrapped solver, given up front: the root finder takes the
+    # controller's tolerances; the stage loop kind suits the adjoint (forward mode needs "lax").
+    kw = {"scan_kind": "lax" if isinstance(adjoint, diffrax.ForwardMode) else "bounded"}
+    if implicit:
+        kw["root_finder"] = diffrax.VeryChord(rtol=rtol, atol=atol, norm=controller.norm)
+    inner = SOLVERS[solver.lower()](**kw)
+    slv = ProjectedSolver(inner, _project_y) if stabilise else inner
     saveat = diffrax.SaveAt(t0=True, t1=True) if saveat_ts is None else diffrax.SaveAt(ts=jnp.asarray(saveat_ts))
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(field), slv, t0=t0, t1=t1, dt0=dt0, y0=(x0, xd0), args=(mech, mass_properties(mech)), saveat=saveat,
