@@ -1,0 +1,41 @@
+"""Parameter identification of tree robots: consistent parameterisations, regressors, fits, rollouts."""
+
+from ._data import (
+    KRANG_ARM_GEAR,
+    KRANG_ARM_JOINTS,
+    KRANG_ARM_KM,
+    ArmData,
+    DataError,
+    arm_data_from_arrays,
+    current_limits,
+    load_arm_run,
+    zero_phase_signals,
+)
+from ._fit import (
+    CompressedLSQ,
+    FitResult,
+    compress,
+    fit_consistent,
+    params_from_theta,
+    theta_from_params,
+    torque_residuals,
+)
+from ._rollout import Windows, fit_rollout, make_windows, rollout_residuals
+from ._params import (
+    inertia_from_log_cholesky,
+    inv_softplus,
+    log_cholesky_from_inertia,
+    params_from_pseudo_inertia,
+    pseudo_inertia,
+    softplus,
+)
+from ._regressor import (
+    N_PER_JOINT,
+    actuator_columns,
+    identifiable_basis,
+    model_with_params,
+    ordinary_least_squares,
+    params_of_model,
+    regressor,
+    rigid_regressor,
+)
