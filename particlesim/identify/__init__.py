@@ -9,7 +9,6 @@ from ._data import (
     arm_data_from_arrays,
     current_limits,
     load_arm_run,
-    zero_phase_signals,
 )
 from ._fit import (
     CompressedLSQ,

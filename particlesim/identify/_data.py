@@ -1,4 +1,4 @@
-"""Krang arm hardware runs: loading, row alignment, torque from current, checks, zero-phase signals.
+"""Krang arm hardware runs: loading, row alignment, torque from current, checks, current limits.
 
 Files (``/work/shared/data/krang/arm_hardware/{train,test}``, whitespace-separated, no header, ~100 Hz): ``dataQ``,
 ``dataDotQ`` (causal ~3 Hz Butterworth velocity, lags the position), ``dataDDotQ`` (backward difference, one row
@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
-from scipy.signal import butter, filtfilt
 
 from ..errors import ModelError
 
@@ -26,7 +25,6 @@ __all__ = [
     "load_arm_run",
     "arm_data_from_arrays",
     "current_limits",
-    "zero_phase_signals",
 ]
 
 #: Motor torque constants (N m / A) and gear ratios of the 7 arm joints (data README). Joint 7: the simulator
@@ -146,19 +144,3 @@ def current_limits(current: np.ndarray, *, rel: float = 2e-3, min_count: int = 5
     top = a.max(axis=0)
     hits = (a >= top * (1 - rel)).sum(axis=0)
     return np.where(hits >= min_count, top * (1 - rel), np.inf)
-
-
-def zero_phase_signals(data: ArmData, cutoff_hz: float, *, order: int = 2) -> ArmData:
-    """Velocity and acceleration re-derived from the position without lag.
-
-    ``q`` is low-pass filtered forwards and backwards (``filtfilt``, Butterworth of ``order``, cut-off
-    ``cutoff_hz``; zero phase) on the median sample rate, then differentiated twice with second-order
-    differences on the actual (non-uniform) time stamps. ``q`` itself and the torque are kept as measured.
-    """
-    t = data.t
-    fs = 1.0 / np.median(np.diff(t))
-    b, a = butter(order, cutoff_hz / (0.5 * fs))
-    qf = filtfilt(b, a, data.q, axis=0)
-    qd = np.gradient(qf, t, axis=0)
-    qdd = np.gradient(qd, t, axis=0)
-    return dataclasses.replace(data, qd=qd, qdd=qdd, name=f"{data.name} (zero-phase {cutoff_hz:g} Hz)")

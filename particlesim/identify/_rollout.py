@@ -65,8 +65,9 @@ def rollout_residuals(theta, model: TreeModel, windows: Windows, *, eps: float, 
 
 
 def _show(**kwargs):
-    shown = {k: v for k, v in kwargs.items() if k in ("step", "loss", "num_steps")}
-    print("  rollout LM", " ".join(f"{k}={v}" for k, v in shown.items()) or "iteration")
+    # optimistix passes name=(label, traced value); print from inside the compiled solve.
+    items = [v for k, v in kwargs.items() if k != "y" and isinstance(v, tuple) and len(v) == 2]
+    jax.debug.print("  rollout LM " + " ".join(f"{label}={{}}" for label, _ in items), *[v for _, v in items])
 
 
 def fit_rollout(theta0, model: TreeModel, windows: Windows, *, eps: float, max_steps: int = 20,
