@@ -43,9 +43,7 @@ class MechanismBuilder:
         self.gravity = np.asarray(gravity, dtype=float)
         self._particles: dict[str, tuple[np.ndarray, bool]] = {}
         self._bodies: list[tuple[str, RigidInertia, tuple[str, ...], tuple, str]] = []
-        self._links: list[tuple[str, str, str, Optional[float]]] = []
-        self._cuts: list[tuple[str, str, str]] = []
-        self._prismatic: list[tuple[tuple[str, ...], tuple[str, ...], str]] = []
+        self._joints: list[tuple[str, tuple[str, ...], str, Optional[float]]] = []  # kind, names, label, length
         self._points: dict[str, tuple[Optional[str], np.ndarray]] = {}
         self._springs: list[tuple] = []
         self._tyres: list[tuple] = []
@@ -85,19 +83,29 @@ class MechanismBuilder:
         return name
 
     def link(self, a: str, b: str, *, name: Optional[str] = None, length: Optional[float] = None) -> None:
-        """A massless rigid link (distance constraint) between particles ``a`` and ``b``."""
-        self._links.append((a, b, name or f"link {a}-{b}", length))
+        """A massless rigid link (distance constraint) between particles or points ``a`` and ``b``; its length is
+        the assembly distance unless given."""
+        self._joints.append(("link", (a, b), name or f"link {a}-{b}", length))
 
     def cut_joint(self, a: str, b: str, *, name: Optional[str] = None) -> None:
-        """Close a loop: particles ``a`` and ``b`` (on different branches) coincide, ``r_a = r_b``."""
-        self._cuts.append((a, b, name or f"cut joint {a}={b}"))
+        """Close a loop: particles/points ``a`` and ``b`` (on different branches) coincide, ``r_a = r_b``."""
+        self._joints.append(("coincide", (a, b), name or f"cut joint {a}={b}", None))
+
+    def on_line(self, particle: str, origin: str, direction: Sequence[str], ref: str, *,
+                name: Optional[str] = None) -> None:
+        """Keep ``particle`` on the line through point ``origin`` along ``direction = (d0, d1)``; ``origin``,
+        ``d0``, ``d1`` and ``ref`` (off the line) are points of one body (or the ground). With a shared particle
+        at ``origin`` this makes a revolute joint whose second axis particle belongs to one body only."""
+        if len(direction) != 2:
+            raise ModelError(f"on_line {name or particle}: direction needs two points")
+        self._joints.append(("on_line", (particle, origin, *direction, ref), name or f"{particle} on axis", None))
 
     def prismatic(self, axis_a: Sequence[str], axis_b: Sequence[str], *, name: Optional[str] = None) -> None:
-        """Prismatic joint: ``axis_a = (a0, a1, a2)`` are particles of body A (or ground) with a0, a1 on the axis
-        and a2 off it; ``axis_b = (b0, b1, b2)`` likewise on body B. B slides along A's axis without turning."""
+        """Prismatic joint: ``axis_a = (a0, a1, a2)`` are particles/points of body A (or ground) with a0, a1 on the
+        axis and a2 off it; ``axis_b = (b0, b1, b2)`` likewise on body B. B slides along A's axis without turning."""
         if len(axis_a) != 3 or len(axis_b) != 3:
             raise ModelError(f"prismatic joint {name}: needs three particles on each side")
-        self._prismatic.append((tuple(axis_a), tuple(axis_b), name or f"prismatic {axis_a[0]}-{axis_b[0]}"))
+        self._joints.append(("prismatic", (*axis_a, *axis_b), name or f"prismatic {axis_a[0]}-{axis_b[0]}", None))
 
     # ---- force elements ----
     def point(self, name: str, body: Optional[str], xyz) -> str:
@@ -174,29 +182,8 @@ class MechanismBuilder:
                     if not (is_ground[ids[a]] and is_ground[ids[b]]):
                         distance.append((ids[a], ids[b], f"body '{name}' distance {primaries[a]}-{primaries[b]}"))
                         lengths.append(np.linalg.norm(pos[ids[a]] - pos[ids[b]]))
-        for a, b, label, length in self._links:
-            i, j = idx(a, label), idx(b, label)
-            distance.append((i, j, label))
-            lengths.append(np.linalg.norm(pos[i] - pos[j]) if length is None else float(length))
-        coincide = [(idx(a, label), idx(b, label), label) for a, b, label in self._cuts]
-        prismatics, offsets = [], []
-        for side_a, side_b, label in self._prismatic:
-            ia = tuple(idx(p, label) for p in side_a)
-            ib = tuple(idx(p, label) for p in side_b)
-            a0, a1, a2 = pos[list(ia)]
-            if np.linalg.norm(np.cross(a1 - a0, a2 - a0)) <= 1e-9 * np.linalg.norm(a1 - a0) ** 2:
-                raise ModelError(f"{label}: particle '{side_a[2]}' lies on the axis '{side_a[0]}'-'{side_a[1]}'")
-            f = np.asarray(frame_from_points(jnp.asarray(a0), jnp.asarray(a1), jnp.asarray(a2)))
-            offsets.append(float(f[:, 1] @ (pos[ib[2]] - pos[ib[0]])))
-            prismatics.append((ia, ib, label))
-
         free = tuple(int(i) for i in np.flatnonzero(~is_ground))
         used = {i for b in bodies for i in b.primaries}
-        linked = {i for i, j, _ in distance} | {j for i, j, _ in distance}
-        for i in free:
-            if i not in used:
-                raise ModelError(f"particle '{names[i]}' is dangling: it belongs to no body" +
-                                 (" (a massless link alone gives it no mass)" if i in linked else ""))
 
         points = []
         point_index = {}
@@ -228,13 +215,51 @@ class MechanismBuilder:
                 raise ModelError(f"{what}: unknown particle or point '{n}'")
             return point_index[n]
 
+        def where(k):  # assembly position of point k
+            pt = points[k]
+            if pt.particle >= 0:
+                return pos[pt.particle]
+            return np.asarray(_point_world(bodies[pt.body], np.asarray(pt.local), pos))
+
+        coincide, generic, point_lengths, offsets = [], [], [], []
+        for kind, pnames, label, length in self._joints:
+            ks = tuple(pidx(n, label) for n in pnames)
+            particles_only = all(points[k].particle >= 0 for k in ks)
+            if kind == "link" and particles_only:
+                distance.append((ks[0], ks[1], label))
+                lengths.append(np.linalg.norm(pos[ks[0]] - pos[ks[1]]) if length is None else float(length))
+            elif kind == "coincide" and particles_only:
+                coincide.append((ks[0], ks[1], label))
+            elif kind == "link":
+                generic.append(("link", ks, label, len(point_lengths)))
+                point_lengths.append(np.linalg.norm(where(ks[0]) - where(ks[1])) if length is None else float(length))
+            elif kind == "coincide":
+                generic.append(("coincide", ks, label, -1))
+            elif kind == "on_line":
+                b, o, d0, d1, ref = (where(k) for k in ks)
+                if np.linalg.norm(np.cross(d1 - d0, ref - d0)) <= 1e-9 * np.linalg.norm(d1 - d0) ** 2:
+                    raise ModelError(f"{label}: reference point '{pnames[4]}' lies on the line")
+                generic.append(("on_line", ks, label, -1))
+            else:
+                a0, a1, a2, b0, _, b2 = (where(k) for k in ks)
+                if np.linalg.norm(np.cross(a1 - a0, a2 - a0)) <= 1e-9 * np.linalg.norm(a1 - a0) ** 2:
+                    raise ModelError(f"{label}: point '{pnames[2]}' lies on the axis '{pnames[0]}'-'{pnames[1]}'")
+                f = np.asarray(frame_from_points(jnp.asarray(a0), jnp.asarray(a1), jnp.asarray(a2)))
+                generic.append(("prismatic", ks, label, len(offsets)))
+                offsets.append(float(f[:, 1] @ (b2 - b0)))
+        constrained = {k for kind, ks, _, _ in generic for k in ks} | {i for i, j, _ in coincide} | \
+            {j for i, j, _ in coincide} | {i for i, j, _ in distance} | {j for i, j, _ in distance}
+        for i in free:
+            if i not in used and i not in constrained:
+                raise ModelError(f"particle '{names[i]}' is dangling: it belongs to no body and no joint")
+
         mech0 = dict(
             body_mass=tuple(masses), body_com=tuple(coms), body_inertia=tuple(inertias), body_primaries=tuple(prims),
             ground_xyz=jnp.asarray(pos[is_ground]).reshape(-1, 3), lengths=jnp.asarray(lengths, dtype=float),
-            offsets=jnp.asarray(offsets, dtype=float), gravity=jnp.asarray(self.gravity), points=tuple(points),
+            point_lengths=jnp.asarray(point_lengths, dtype=float), offsets=jnp.asarray(offsets, dtype=float), gravity=jnp.asarray(self.gravity), points=tuple(points),
             particle_names=tuple(names), free=free, ground=tuple(int(i) for i in np.flatnonzero(is_ground)),
             bodies=tuple(bodies), distance_pairs=tuple(distance), coincide_pairs=tuple(coincide),
-            prismatics=tuple(prismatics),
+            generic=tuple(generic),
         )
         springs = []
         for name, a, b, k, c, l0 in self._springs:
@@ -313,3 +338,10 @@ def _redundant_rows(j: np.ndarray, labels: list[str]) -> str:
         else:
             return labels[i]
     return "?"
+
+
+def _point_world(body: BodySpec, local: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    p = pos[list(body.primaries)]
+    if body.kind == "rod":
+        return p[0] + local[0] * (p[1] - p[0])
+    return p[0] + np.asarray(frame_from_points(*map(jnp.asarray, p[:3]))) @ local

@@ -5,9 +5,12 @@ Rows, in order:
 1. distances ``(|r_i - r_j|^2 - d^2) / 2 = 0``: the rigid distances inside every body (Attia eqs. (11)–(16)) and
    massless links;
 2. coincidences ``r_a - r_b = 0``: cut joints that close loops (Attia §2.4, the quarter car's ``r7 = r10``);
-3. prismatic joints, five rows each: both axis particles of body B stay on body A's axis (two components
-   perpendicular to it for each particle) and a third particle of B keeps its angle about the axis. This is an
-   independent set equivalent to Attia eqs. (44a)–(44c), whose cross-product form has redundant rows.
+3. rows on *points* (particles or points fixed to bodies), in declaration order: massless links between points,
+   cut joints involving a body point, a particle kept on a body's line (two rows: a revolute joint's second
+   axis particle on the other body's axis), and prismatic joints, five rows each: both axis points of body B
+   stay on body A's axis (two components perpendicular to it for each) and a third point of B keeps its angle
+   about the axis. The prismatic rows are an independent set equivalent to Attia eqs. (44a)–(44c), whose
+   cross-product form has redundant rows.
 
 The acceleration-level form is ``J(x) xdd = gamma(x, xd)`` with ``gamma = -(d/dx (J xd)) xd``, obtained by forward
 differentiation twice (no constraint has explicit time dependence).
@@ -34,11 +37,30 @@ def _perp_frame(a0, a1, a2):
     return u, n1, jnp.cross(u, n1)
 
 
-def _prismatic_rows(mech: Mechanism, r, k: int) -> Array:
-    (a0, a1, a2), (b0, b1, b2), _ = mech.prismatics[k]
-    _, n1, n2 = _perp_frame(r[a0], r[a1], r[a2])
-    d0, d1 = r[b0] - r[a0], r[b1] - r[a0]
-    return jnp.stack([n1 @ d0, n2 @ d0, n1 @ d1, n2 @ d1, n1 @ (r[b2] - r[b0]) - mech.offsets[k]])
+def _generic_rows(mech: Mechanism, allp, spec) -> Array:
+    kind, pts, _, k = spec
+
+    def p(i):
+        return allp[i]
+
+    if kind == "link":
+        d = p(pts[0]) - p(pts[1])
+        return (0.5 * (d @ d - mech.point_lengths[k] ** 2))[None]
+    if kind == "coincide":
+        return p(pts[0]) - p(pts[1])
+    if kind == "on_line":
+        b, o, d0, d1, ref = (p(i) for i in pts)
+        _, n1, n2 = _perp_frame(d0, d1, ref)
+        return jnp.stack([n1 @ (b - o), n2 @ (b - o)])
+    a0, a1, a2, b0, b1, b2 = (p(i) for i in pts)  # prismatic
+    _, n1, n2 = _perp_frame(a0, a1, a2)
+    e0, e1 = b0 - a0, b1 - a0
+    return jnp.stack([n1 @ e0, n2 @ e0, n1 @ e1, n2 @ e1, n1 @ (b2 - b0) - mech.offsets[k]])
+
+
+def _generic_all(mech: Mechanism, r) -> Array:
+    allp = mech.point_positions(r)
+    return jnp.concatenate([_generic_rows(mech, allp, spec) for spec in mech.generic])
 
 
 def constraints(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " C"]:
@@ -54,8 +76,8 @@ def constraints(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " C"]:
         i = np.asarray([p[0] for p in mech.coincide_pairs])
         j = np.asarray([p[1] for p in mech.coincide_pairs])
         rows.append((r[i] - r[j]).reshape(-1))
-    if mech.prismatics:
-        rows.append(_prismatic_all(mech, r))
+    if mech.generic:
+        rows.append(_generic_all(mech, r))
     if not rows:
         return jnp.zeros((0,), dtype=x.dtype)
     return jnp.concatenate(rows)
@@ -66,8 +88,10 @@ def constraint_labels(mech: Mechanism) -> list[str]:
     out = [p[2] for p in mech.distance_pairs]
     for p in mech.coincide_pairs:
         out += [f"{p[2]} ({c})" for c in "xyz"]
-    for p in mech.prismatics:
-        out += [f"{p[2]} ({c})" for c in ("axis 1a", "axis 1b", "axis 2a", "axis 2b", "rotation")]
+    parts = {"link": ("",), "coincide": ("x", "y", "z"), "on_line": ("n1", "n2"),
+             "prismatic": ("axis 1a", "axis 1b", "axis 2a", "axis 2b", "rotation")}
+    for kind, _, label, _ in mech.generic:
+        out += [f"{label} ({c})" if c else label for c in parts[kind]]
     return out
 
 
@@ -100,7 +124,7 @@ def _scatter_rows(rows: int, parts, n_coords: int) -> Array:
 
 
 def constraint_jacobian(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, "C 3F"]:
-    """``J = d constraints / dx``: closed form for distances and coincidences, forward-mode for prismatic rows."""
+    """``J = d constraints / dx``: closed form for distances and coincidences, forward-mode for point rows."""
     r = mech.all_positions(x)
     col = _free_columns(mech)
     n = mech.n_coords
@@ -113,15 +137,11 @@ def constraint_jacobian(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array,
         i, j = _pair_index(mech.coincide_pairs)
         eye = jnp.tile(jnp.eye(3), (len(i), 1))
         blocks.append(_scatter_rows(3 * len(i), [(np.repeat(col[i], 3), eye), (np.repeat(col[j], 3), -eye)], n))
-    if mech.prismatics:
-        blocks.append(jax.jacfwd(lambda y: _prismatic_all(mech, mech.all_positions(y)))(x))
+    if mech.generic:
+        blocks.append(jax.jacfwd(lambda y: _generic_all(mech, mech.all_positions(y)))(x))
     if not blocks:
         return jnp.zeros((0, n), dtype=x.dtype)
     return jnp.concatenate(blocks, axis=0)
-
-
-def _prismatic_all(mech: Mechanism, r) -> Array:
-    return jnp.concatenate([_prismatic_rows(mech, r, k) for k in range(len(mech.prismatics))])
 
 
 def velocity_constraints(mech: Mechanism, x, xd) -> Float[Array, " C"]:
@@ -131,7 +151,7 @@ def velocity_constraints(mech: Mechanism, x, xd) -> Float[Array, " C"]:
 
 def constraint_gamma(mech: Mechanism, x, xd) -> Float[Array, " C"]:
     """Right-hand side of ``J xdd = gamma``: ``gamma = -xd^T (d^2 constraints / dx^2) xd`` (closed form for
-    distances, ``-|v_i - v_j|^2``; zero for coincidences; forward-mode twice for prismatic rows)."""
+    distances, ``-|v_i - v_j|^2``; zero for coincidences; forward-mode twice for point rows)."""
     v = mech.all_positions(xd) * jnp.asarray(_free_columns(mech) >= 0, dtype=xd.dtype)[:, None]
     parts = []
     if mech.distance_pairs:
@@ -140,9 +160,9 @@ def constraint_gamma(mech: Mechanism, x, xd) -> Float[Array, " C"]:
         parts.append(-jnp.sum(dv * dv, axis=1))
     if mech.coincide_pairs:
         parts.append(jnp.zeros(3 * len(mech.coincide_pairs), dtype=x.dtype))
-    if mech.prismatics:
+    if mech.generic:
         def rows(y):
-            return _prismatic_all(mech, mech.all_positions(y))
+            return _generic_all(mech, mech.all_positions(y))
 
         parts.append(-jax.jvp(lambda y: jax.jvp(rows, (y,), (xd,))[1], (x,), (xd,))[1])
     if not parts:

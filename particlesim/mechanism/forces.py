@@ -20,7 +20,7 @@ __all__ = ["generalized_forces", "potential_energy", "spring_lengths", "body_ang
 
 
 def _point(mech: Mechanism, k: int):
-    return lambda x: mech.point_position(k, mech.all_positions(x))
+    return lambda x: mech.point_positions(mech.all_positions(x))[k]
 
 
 def spring_lengths(mech: Mechanism, x) -> Float[Array, " S"]:
@@ -40,39 +40,50 @@ def body_angular_velocity(mech: Mechanism, b: int, x, xd) -> Float[Array, "3"]:
     return unskew(fd @ f.T)
 
 
+def _points_fn(mech: Mechanism):
+    return lambda y: mech.point_positions(mech.all_positions(y))
+
+
 def generalized_forces(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"], *,
                        lumped=None) -> Float[Array, " 3F"]:
     """Gravity + spring-dampers + tyres + applied forces and torques, as forces on the free coordinates.
 
+    Point positions and velocities are evaluated once (one forward-mode pass), the Cartesian forces of all
+    elements are summed per point, and one reverse-mode pass maps them to the coordinates (``Q = (dP/dx)^T F``).
     ``lumped``: the particle masses ``m_bar`` if already computed (:func:`~.dynamics.mass_properties`)."""
     free = np.asarray(mech.free, dtype=int)
     lumped = mech.lumped_masses() if lumped is None else lumped
     q = (lumped[free][:, None] * mech.gravity[None, :]).reshape(-1)
-    for s in mech.springs:
-        def length(y, s=s):
-            return jnp.linalg.norm(_point(mech, s.a)(y) - _point(mech, s.b)(y))
-
-        ell, grad = jax.value_and_grad(length)(x)
-        f = s.stiffness * (ell - s.free_length) + s.damping * (grad @ xd)
-        q = q - f * grad
-    for ty in mech.tyres:
-        n = jnp.asarray(ty.normal)
-
-        def height(y, ty=ty, n=n):
-            return _point(mech, ty.point)(y) @ n
-
-        h, grad = jax.value_and_grad(height)(x)
-        d = h - ty.ground - ty.radius
-        f = jnp.where(d < 0.0, -(ty.stiffness * d + ty.damping * (grad @ xd)), 0.0)
-        q = q + f * grad
+    point_elements = mech.springs or mech.tyres or any(ap.kind == "force" for ap in mech.applied)
+    if point_elements:
+        fn = _points_fn(mech)
+        pts, vel = jax.jvp(fn, (x,), (xd,))
+        f_pts = jnp.zeros_like(pts)
+        if mech.springs:
+            a = np.asarray([s.a for s in mech.springs])
+            b = np.asarray([s.b for s in mech.springs])
+            k = jnp.stack([s.stiffness for s in mech.springs])
+            c = jnp.stack([s.damping for s in mech.springs])
+            l0 = jnp.stack([s.free_length for s in mech.springs])
+            d = pts[a] - pts[b]
+            ell = jnp.linalg.norm(d, axis=1)
+            u = d / ell[:, None]
+            f = k * (ell - l0) + c * jnp.sum(u * (vel[a] - vel[b]), axis=1)
+            f_pts = f_pts.at[a].add(-f[:, None] * u).at[b].add(f[:, None] * u)
+        for ty in mech.tyres:
+            n = jnp.asarray(ty.normal)
+            dist = pts[ty.point] @ n - ty.ground - ty.radius
+            f = jnp.where(dist < 0.0, -(ty.stiffness * dist + ty.damping * (vel[ty.point] @ n)), 0.0)
+            f_pts = f_pts.at[ty.point].add(f * n)
+        for ap in mech.applied:
+            if ap.kind == "force":
+                f_pts = f_pts.at[ap.target].add(ap.fn(t, x, xd))
+        _, pull = jax.vjp(fn, x)
+        q = q + pull(f_pts)[0]
     for ap in mech.applied:
-        value = ap.fn(t, x, xd)
-        if ap.kind == "force":
-            _, pull = jax.vjp(_point(mech, ap.target), x)
-            q = q + pull(value)[0]
-        else:
+        if ap.kind == "torque":
             _, pull = jax.vjp(lambda v, b=ap.target: body_angular_velocity(mech, b, x, v), xd)
-            q = q + pull(value)[0]
+            q = q + pull(ap.fn(t, x, xd))[0]
     return q
 
 

@@ -31,7 +31,7 @@ _GN_ITERATIONS = 3
 
 def project(mech: Mechanism, x, xd):
     """Project ``(x, xd)`` onto ``Phi = 0`` and ``J xd = 0`` (minimum-norm corrections)."""
-    if not (mech.distance_pairs or mech.coincide_pairs or mech.prismatics):
+    if not (mech.distance_pairs or mech.coincide_pairs or mech.generic):
         return x, xd
     for _ in range(_GN_ITERATIONS):
         j = constraint_jacobian(mech, x)

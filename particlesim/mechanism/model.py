@@ -27,7 +27,6 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..particles import PAIRS, solve_particle_masses
-from ..spatial import frame_from_points
 
 __all__ = ["Mechanism", "BodySpec", "PointSpec", "SpringSpec", "TyreSpec", "AppliedSpec"]
 
@@ -95,6 +94,7 @@ class Mechanism(eqx.Module):
     body_primaries: tuple  # body-frame primary positions, (k, 3) each
     ground_xyz: Float[Array, "G 3"]
     lengths: Float[Array, " D"]  # distance constraints
+    point_lengths: Float[Array, " K"]  # massless links between points
     offsets: Float[Array, " A"]  # prismatic angle locks
     gravity: Float[Array, "3"]
     points: tuple
@@ -108,7 +108,7 @@ class Mechanism(eqx.Module):
     bodies: tuple = eqx.field(static=True)
     distance_pairs: tuple = eqx.field(static=True)  # (i, j, label)
     coincide_pairs: tuple = eqx.field(static=True)  # (i, j, label)
-    prismatics: tuple = eqx.field(static=True)  # ((a0, a1, a2), (b0, b1, b2), label)
+    generic: tuple = eqx.field(static=True)  # (kind, point indices, label, parameter index): see constraints
 
     @property
     def n_free(self) -> int:
@@ -130,14 +130,33 @@ class Mechanism(eqx.Module):
 
     def point_position(self, k: int, r: Float[Array, "P 3"]) -> Float[Array, "3"]:
         """World position of point ``k`` given all particle positions ``r``."""
-        pt = self.points[k]
-        if pt.particle >= 0:
-            return r[pt.particle]
-        b = self.bodies[pt.body]
-        p = r[np.asarray(b.primaries)]
-        if b.kind == "rod":
-            return p[0] + pt.local[0] * (p[1] - p[0])
-        return p[0] + frame_from_points(p[0], p[1], p[2]) @ pt.local
+        return self.point_positions(r)[k]
+
+    def point_positions(self, r: Float[Array, "P 3"]) -> Float[Array, "K 3"]:
+        """World positions of all points (particles first, then body points), vectorised over bodies.
+
+        Body points sit at ``r_1 + F l`` with ``F`` the Gram–Schmidt frame of the body's first three primaries
+        (rods: ``r_1 + l_0 (r_2 - r_1)``)."""
+        body_pts = [k for k, pt in enumerate(self.points) if pt.particle < 0]
+        if not body_pts:
+            return r
+        bodies = np.asarray([self.points[k].body for k in body_pts])
+        local = jnp.stack([self.points[k].local for k in body_pts])
+        prim = np.asarray([(self.bodies[b].primaries + (self.bodies[b].primaries[-1],) * 3)[:3] for b in bodies])
+        p0, p1, p2 = r[prim[:, 0]], r[prim[:, 1]], r[prim[:, 2]]
+        is_rod = np.asarray([self.bodies[b].kind == "rod" for b in bodies])
+        e1 = p1 - p0
+        e1 = e1 / jnp.linalg.norm(e1, axis=1, keepdims=True)
+        w = p2 - p0
+        w = w - jnp.sum(w * e1, axis=1, keepdims=True) * e1
+        # Rods have no third primary (p2 == p1, w == 0): guard the norm, their rows are replaced below.
+        wn = jnp.linalg.norm(w, axis=1, keepdims=True)
+        e2 = w / jnp.where(wn > 0, wn, 1.0)
+        e3 = jnp.cross(e1, e2)
+        frame_pts = p0 + local[:, :1] * e1 + local[:, 1:2] * e2 + local[:, 2:3] * e3
+        rod_pts = p0 + local[:, :1] * (p1 - p0)
+        pts = jnp.where(is_rod[:, None], rod_pts, frame_pts)
+        return jnp.concatenate([r, pts], axis=0)
 
     # ---- masses ----
     def particle_masses(self, b: int) -> Float[Array, " n"]:

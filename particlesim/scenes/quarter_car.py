@@ -1,38 +1,42 @@
-"""The quarter-car double-wishbone suspension of the Attia reference (§3): data and equivalent particles.
+"""The quarter-car double-wishbone suspension of the Attia reference (§3): data, equivalent particles, mechanism.
 
 Data transcribed from the reference: Table 1 (masses, inertias), Tables 2–3 (spring-damper, tyre), Table 4 (global
-particle coordinates, metres; x along the car, y lateral/outboard, z up).
+particle coordinates, metres; x along the car, y lateral/outboard, z up). Gravity -z.
 
 Assumptions where the reference leaves gaps (each is a choice of this package, not of the reference):
 
-A1. Every body frame is parallel to the global axes at the assembled position (the reference gives the inertias in
-    body axes without the axes' directions; with these axes the A-arm inertias are planar in their own plane, which
-    supports the choice).
-A2. Centres of mass: the chassis CoM is particle 1 (the point on the vertical slider whose motion the reference
-    plots); each A-arm's CoM is the centroid of its three joint particles; the knuckle's CoM is the centroid of its
-    joint particles 6, 7, 8; the wheel's CoM is particle 10 (the only particle outboard of the knuckle).
-A3. Particle sets: chassis and knuckle spatial (the knuckle's Table 1 inertia, 1.6 about every axis, is not a
-    planar mass distribution, so the reference's three-particle knuckle cannot carry it); the A-arms planar
-    (their Table 1 inertias satisfy I_zz = I_xx + I_yy); the wheel spatial.
-A4. Joint-based primaries: lower arm 2, 3 (chassis pivots) and 6 (ball joint); upper arm 4, 5 and 8; knuckle 6, 7,
-    8 and a fourth point 0.1 m forward of particle 7 (6, 7, 8, 10 all lie in the plane x = -0.2); chassis 1, 2, 4
-    and a fourth point 0.5 m above particle 1; wheel 10, a point 0.1 m outboard on the spindle (y), and two
-    points 0.35 m (the tyre radius) forward and above the centre.
-A5. Table 4 lists particles 8 and 9 at the same place and no particle 11; the cut joint r8 = r11 implies 11 sits
-    at 8, and 9 is not used here. Table 4's particle 10 (y = 0.67) does not coincide with 7 (y = 0.62) although
-    the cut joint r7 = r10 says it should: 10 is read as the wheel centre instead, and the steering-rod geometry
-    is left to the mechanism scene.
-A6. The steering rod has no mass in Table 1: it is a massless link (a distance constraint), with no particles of
-    its own here.
+A1. Every body frame is parallel to the global axes at assembly (the reference gives inertias in body axes
+    without their directions; with these axes the A-arm inertias are planar in their own planes, which supports
+    the choice).
+A2. Centres of mass: the chassis at particle 1 (the point on the vertical slider whose motion the reference
+    plots); each A-arm at the centroid of its three joint particles; the knuckle at the centroid of particles 6,
+    8 and 10; the wheel at particle 10, read as the wheel centre (the only particle outboard of the knuckle).
+A3. Particle sets: chassis spatial (particles 2, 3, 4 and C, 0.5 m above particle 1 on the slider axis); A-arms
+    planar (their Table 1 inertias satisfy I_zz = I_xx + I_yy): lower 2, 3, 6, upper 4, 5, 8; knuckle spatial (6,
+    11 at particle 8's place, 10, and K 0.1 m forward of 10): the reference's three-particle knuckle cannot carry
+    its Table 1 inertia (1.6 about every axis is not planar), and 6, 7, 8, 10 all lie in the plane x = -0.2; wheel
+    spatial (10, S 0.1 m outboard on the spindle, and two rim points 0.25 m forward and above).
+A4. Joints: chassis-lower arm revolute by the shared particles 2 and 3; chassis-upper arm revolute by the shared
+    particle 4 with particle 5 kept on the chassis axis through 4 (parallel to 2-3); ball joints at 6 (shared)
+    and 8 (cut joint r8 = r11, as in the reference); knuckle-wheel revolute by the shared centre 10 with S kept
+    on the knuckle's spindle axis (y); chassis on a vertical prismatic joint to the ground through particle 1.
+A5. Steering rod: Table 1 gives it no mass, so it is a massless link. Table 4's particle 7 lies almost on the
+    kingpin axis 6-8 (13 mm off it, in the rod's own direction), where a rod cannot hold the steering; following
+    the Chrono double-wishbone layout (steering arm behind the kingpin, rod running inboard), the rod joins the
+    knuckle at SA = (-0.32, 0.62, -0.24) and the chassis at TI = (-0.32, 0.20, -0.24). Table 4's particles 7 and
+    9 are then unused (9 repeats 8; the reference's cut joint r7 = r10 cannot hold at Table 4's values).
+A6. Spring-damper (Table 2) between the lower-arm point SL = (-0.22, 0.45, -0.26) and the chassis point SC
+    0.345 m (its free length) above it: vertical and unloaded at assembly. Tyre (Table 3): vertical, on the wheel
+    centre, ground plane 0.35 m (the radius) below it: touching, unloaded. The free response starts from rest in
+    this assembly configuration and settles under gravity.
 """
-
 from __future__ import annotations
 
 import numpy as np
 
 from ..inertia import RigidInertia
 
-__all__ = ["TABLE1", "TABLE4", "SPRING", "TYRE", "bodies", "joint_primaries"]
+__all__ = ["TABLE1", "TABLE4", "SPRING", "TYRE", "PRIMARIES", "bodies", "joint_primaries", "quarter_car"]
 
 #: Table 1: mass [kg], inertia about the CoM (xx, yy, zz, yz, xz, xy) [kg m^2].
 TABLE1: dict[str, tuple[float, tuple[float, ...]]] = {
@@ -73,31 +77,87 @@ def _com(name: str) -> np.ndarray:
         "chassis": _p(1),
         "lower_arm": (_p(2) + _p(3) + _p(6)) / 3,
         "upper_arm": (_p(4) + _p(5) + _p(8)) / 3,
-        "knuckle": (_p(6) + _p(7) + _p(8)) / 3,
+        "knuckle": (_p(6) + _p(8) + _p(10)) / 3,
         "wheel": _p(10),
     }[name]
 
 
-def bodies() -> dict[str, RigidInertia]:
-    """Table 1 bodies, each with its frame at its (assumed) CoM and axes parallel to the global axes."""
+def bodies(masses: dict | None = None) -> dict[str, RigidInertia]:
+    """Table 1 bodies, each with its frame at its (assumed) CoM and axes parallel to the global axes; ``masses``
+    overrides some masses (inertias scale with them)."""
     out = {}
     for name, (mass, (ixx, iyy, izz, iyz, ixz, ixy)) in TABLE1.items():
+        scale = (masses or {}).get(name, mass) / mass
+        mass, ixx, iyy, izz, iyz, ixz, ixy = (v * scale for v in (mass, ixx, iyy, izz, iyz, ixz, ixy))
         out[name] = RigidInertia.from_principal(mass, np.zeros(3), (ixx, iyy, izz), (iyz, ixz, ixy), name=name,
                                                 degenerate_ok=name in ("lower_arm", "upper_arm"))
     return out
 
 
+def _extra() -> dict[str, np.ndarray]:
+    """Particles and points the reference does not list (assumptions A3, A5, A6)."""
+    w = _p(10)
+    sl = np.array([-0.22, 0.45, -0.26])
+    return {"C": _p(1) + [0.0, 0.0, 0.5], "K": w + [0.1, 0.0, 0.0], "S": w + [0.0, 0.1, 0.0],
+            "R1": w + [0.25, 0.0, 0.0], "R2": w + [0.0, 0.0, 0.25], "SA": np.array([-0.32, 0.62, -0.24]),
+            "TI": np.array([-0.32, 0.20, -0.24]), "SL": sl, "SC": sl + [0.0, 0.0, SPRING["free_length"]]}
+
+
+#: Primary particles of each body (Table 4 numbers or the names of :func:`_extra`), assumption A3.
+PRIMARIES: dict[str, tuple] = {
+    "chassis": (2, 3, 4, "C"),
+    "lower_arm": (2, 3, 6),
+    "upper_arm": (4, 5, 8),
+    "knuckle": (6, 11, 10, "K"),
+    "wheel": (10, "S", "R1", "R2"),
+}
+
+
+def _xyz(key) -> np.ndarray:
+    if key == 11:
+        return _p(8)
+    return _p(key) if isinstance(key, int) else _extra()[key]
+
+
 def joint_primaries() -> dict[str, np.ndarray]:
-    """Assumption A4: primary particles at the joints, in each body's frame (global minus the body's CoM)."""
-    glob = {
-        "chassis": [_p(1), _p(2), _p(4), _p(1) + [0.0, 0.0, 0.5]],
-        "lower_arm": [_p(2), _p(3), _p(6)],
-        "upper_arm": [_p(4), _p(5), _p(8)],
-        "knuckle": [_p(6), _p(7), _p(8), _p(7) + [0.1, 0.0, 0.0]],
-        "wheel": [_p(10), _p(10) + [0.0, 0.1, 0.0], _p(10) + [TYRE["radius"], 0.0, 0.0],
-                  _p(10) + [0.0, 0.0, TYRE["radius"]]],
-    }
-    return {name: np.asarray(pts) - _com(name) for name, pts in glob.items()}
+    """Assumption A3: primary particles at the joints, in each body's frame (global minus the body's CoM)."""
+    return {name: np.stack([_xyz(k) for k in keys]) - _com(name) for name, keys in PRIMARIES.items()}
+
+
+def quarter_car(*, spring=None, tyre=None, masses=None):
+    """The quarter-car mechanism (3 degrees of freedom); returns ``(mech, x0)``. Optional overrides of the spring
+    and tyre constants and body masses (dicts keyed like :data:`SPRING`, :data:`TYRE`, :data:`TABLE1`)."""
+    from ..mechanism import MechanismBuilder
+
+    spring = {**SPRING, **(spring or {})}
+    tyre = {**TYRE, **(tyre or {})}
+    mb = MechanismBuilder(gravity=(0.0, 0.0, -9.81))
+    names = {}
+    for keys in PRIMARIES.values():
+        for k in keys:
+            if k not in names:
+                names[k] = mb.particle(f"P{k}" if isinstance(k, int) else k, _xyz(k))
+    g0 = _p(1)
+    for nm, off in (("G0", [0, 0, 0]), ("G1", [0, 0, 1.0]), ("G2", [1.0, 0, 0])):
+        mb.ground(nm, g0 + np.asarray(off, float))
+    for name, body in bodies(masses).items():
+        mb.body(name, body, [names[k] for k in PRIMARIES[name]], pose=(np.eye(3), _com(name)), on_negative="ignore")
+    ex = _extra()
+    mb.point("centre", "chassis", _p(1))
+    mb.point("TI", "chassis", ex["TI"])
+    mb.point("SC", "chassis", ex["SC"])
+    mb.point("SL", "lower_arm", ex["SL"])
+    mb.point("SA", "knuckle", ex["SA"])
+    mb.point("spindle", "knuckle", ex["S"])
+    mb.prismatic(("G0", "G1", "G2"), ("centre", "C", "P2"), name="chassis slider")
+    mb.on_line("P5", "P4", ("P2", "P3"), "C", name="upper arm pivot 5 on the chassis axis")
+    mb.cut_joint("P8", "P11", name="upper ball joint (cut) r8 = r11")
+    mb.on_line("S", "P10", ("P10", "spindle"), "K", name="wheel spindle S on the knuckle axis")
+    mb.link("SA", "TI", name="steering rod")
+    mb.spring_damper("suspension", "SL", "SC", spring["stiffness"], spring["damping"], spring["free_length"])
+    mb.tyre("tyre", "P10", tyre["stiffness"], tyre["damping"], tyre["radius"], normal=(0.0, 0.0, 1.0),
+            ground=float(_p(10)[2]) - tyre["radius"])
+    return mb.build(dof=3)
 
 
 def body_origins() -> dict[str, np.ndarray]:
