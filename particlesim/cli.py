@@ -1,5 +1,6 @@
-"""Command line: ``python -m particlesim.cli main`` runs the main job (the particle report, then the Krang fall);
-``particles`` and ``krang`` run one of them."""
+"""Command line: ``python -m particlesim.cli main`` runs the main job (the quarter-car free response, the
+particle report of its bodies, then Krang falling on fixed wheels); ``quarter-car``, ``particles`` and ``krang``
+run one of them."""
 
 from __future__ import annotations
 
@@ -44,11 +45,27 @@ def _krang(out: Path) -> None:
     print(f"wrote {out / 'krang_fall.csv'}, {out / 'krang_fall.png'}, {out / 'krang_fall.json'}")
 
 
+def _quarter_car(out: Path) -> None:
+    from .reports.quarter_car import DURATION, quarter_car_report
+
+    print(f"\nQuarter-car double wishbone (Attia 3): free response from rest, {DURATION:g} s ...")
+    f = quarter_car_report(out, progress=True)
+    print(f"  {f['particles_free']} free particles, {f['constraints']} constraints, {f['degrees_of_freedom']} degrees "
+          f"of freedom; {f['solver']} rtol {f['rtol']:g}: {f['accepted_steps']} steps, run {f['run_s']:.2f} s "
+          f"(compile {f['compile_s']:.1f} s)")
+    print(f"  chassis displacement: final {f['final_displacement_m'] * 1e3:.2f} mm; acceleration at release "
+          f"{f['initial_acceleration_m_s2']:.3f} m/s^2, peak {f['peak_acceleration_m_s2']:.2f} m/s^2")
+    print(f"  largest constraint residual over the run: {f['max_position_constraint_residual']:.1e}")
+    print(f"wrote {out / 'quarter_car.csv'}, {out / 'quarter_car.png'}, {out / 'quarter_car.json'}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="particlesim", description=__doc__)
-    parser.add_argument("job", nargs="?", default="main", choices=["main", "particles", "krang"])
+    parser.add_argument("job", nargs="?", default="main", choices=["main", "quarter-car", "particles", "krang"])
     parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     args = parser.parse_args(argv)
+    if args.job in ("main", "quarter-car"):
+        _quarter_car(args.out)
     if args.job in ("main", "particles"):
         _particles(args.out)
     if args.job in ("main", "krang"):
