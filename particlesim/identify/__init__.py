@@ -10,6 +10,7 @@ from ._data import (
     current_limits,
     load_arm_run,
 )
+from ._base import BaseFit, BaseParameters, base_parameters, fit_base_consistent
 from ._fit import (
     CompressedLSQ,
     FitResult,

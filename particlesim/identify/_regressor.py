@@ -19,7 +19,7 @@ from jaxtyping import Array, ArrayLike, Float
 from ..tree import TreeModel, inverse_dynamics
 
 __all__ = ["N_PER_JOINT", "rigid_regressor", "actuator_columns", "regressor", "model_with_params", "params_of_model",
-           "identifiable_basis", "ordinary_least_squares"]
+           "identifiable_basis", "ordinary_least_squares", "column_scale"]
 
 #: Parameters per joint: 10 inertial + rotor inertia + viscous + Coulomb.
 N_PER_JOINT = 13
@@ -81,18 +81,34 @@ def params_of_model(model: TreeModel) -> Float[Array, " 13n"]:
                             pick(model.coulomb)])
 
 
+#: Columns whose norm is below this fraction of the largest are structurally zero (a parameter the data cannot
+#: see at all, e.g. inertia about axes the first joint never turns) and hold only rounding residue.
+ZERO_COLUMN_RTOL = 1e-12
+
+
+def column_scale(w: Float[ArrayLike, "M p"]) -> np.ndarray:
+    """Column norms of ``w`` for scaling, ``inf`` for structurally zero columns (so they scale to exactly 0
+    instead of being blown up from rounding residue to unit norm)."""
+    scale = np.linalg.norm(np.asarray(w), axis=0)
+    return np.where(scale > ZERO_COLUMN_RTOL * scale.max(), scale, np.inf)
+
+
 def identifiable_basis(w: Float[ArrayLike, "M p"], *, rtol: float = 1e-10) -> tuple[np.ndarray, int]:
-    """Orthonormal basis ``V (p, r)`` of the row space of a stacked regressor ``w`` (the identifiable
-    combinations ``V^T pi``: the base parameters up to an invertible map) and its numerical rank ``r``
-    (singular values above ``rtol`` times the largest, after scaling each column to unit norm)."""
+    """Identifiable combinations of a stacked regressor ``w``: ``(E (p, r), r)`` with ``beta = E^T pi`` the base
+    parameters in column-scaled units.
+
+    With ``D = diag(column norms of w)`` and the SVD ``w D^-1 = U S V^T``, ``E = D V_r`` over the ``r`` singular
+    values above ``rtol`` times the largest: ``w pi = U_r S_r E^T pi`` up to the dropped directions, so every
+    combination ``E^T pi`` is determined by the data with a condition number ``<= 1 / rtol`` (relative to the
+    scaled columns). ``E`` spans the row space of ``w``; its columns are orthonormal in the scaled metric
+    ``D^-1 E``, not in the raw parameter units (whose scales differ by many orders of magnitude).
+    """
     w = np.asarray(w).reshape(-1, np.shape(w)[-1])
-    scale = np.linalg.norm(w, axis=0)
-    scale = np.where(scale > 0, scale, 1.0)
+    scale = column_scale(w)
     _, s, vt = np.linalg.svd(w / scale, full_matrices=False)
     r = int(np.sum(s > rtol * s[0]))
-    # Row space of w is {x : x = D^-1 v, v in rowspace(w D^-1)}; orthonormalise.
-    basis, _ = np.linalg.qr(vt[:r].T / scale[:, None])
-    return basis, r
+    # w = U S V^T D, so the row space of w is spanned by the columns of D V_r.
+    return np.where(np.isfinite(scale), scale, 0.0)[:, None] * vt[:r].T, r
 
 
 def ordinary_least_squares(w: Float[ArrayLike, "N n p"], tau: Float[ArrayLike, "N n"], mask=None) -> np.ndarray:
@@ -104,7 +120,6 @@ def ordinary_least_squares(w: Float[ArrayLike, "N n p"], tau: Float[ArrayLike, "
         a, b = w[m], tau[m]
     else:
         a, b = w.reshape(-1, w.shape[-1]), tau.ravel()
-    scale = np.linalg.norm(a, axis=0)
-    scale = np.where(scale > 0, scale, 1.0)
+    scale = column_scale(a)
     x, *_ = np.linalg.lstsq(a / scale, b, rcond=None)
     return x / scale
