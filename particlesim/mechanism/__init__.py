@@ -2,6 +2,7 @@
 particles, loops closed by cut-joint constraints, force elements, and their simulation."""
 
 from .builder import MechanismBuilder
+from .chain import ChainPlan, chain_accelerations, chain_plan
 from .constraints import constraint_gamma, constraint_jacobian, constraint_labels, constraints, velocity_constraints
 from .dynamics import mass_properties, accelerations, accelerations_and_multipliers, kinetic_energy, residuals, total_energy
 from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
@@ -10,6 +11,9 @@ from .model import Mechanism
 
 __all__ = [
     "Mechanism",
+    "ChainPlan",
+    "chain_plan",
+    "chain_accelerations",
     "MechanismBuilder",
     "constraints",
     "constraint_jacobian",

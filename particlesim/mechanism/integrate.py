@@ -21,6 +21,7 @@ import numpy as np
 
 from ..simulate import IMPLICIT_SOLVERS, SOLVERS, Solution
 from .constraints import constraint_jacobian, constraints
+from .chain import chain_accelerations, chain_plan
 from .dynamics import accelerations, mass_properties
 from .model import Mechanism
 
@@ -95,12 +96,13 @@ def _project_y(y, args):
 def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver: str = "tsit5",
                        rtol: float = 1e-8, atol: float = 1e-10, dt0=None, saveat_ts=None, max_steps: int = 100_000,
                        stabilise: bool = True, baumgarte: float = 0.0, adjoint=None, throw: bool = True,
-                       progress: bool = False) -> Solution:
+                       progress: bool = False, solve: str = "dense") -> Solution:
     """Integrate the mechanism from ``(x0, xd0)``; returns a :class:`~particlesim.simulate.Solution` whose ``q``
     and ``qd`` are particle positions and velocities ``(T, 3F)``.
 
     ``stabilise`` projects after every step (see module docstring); ``baumgarte`` optionally adds Baumgarte terms
-    instead of (or besides) it. Solver names as in :data:`particlesim.simulate.SOLVERS`.
+    instead of (or besides) it. Solver names as in :data:`particlesim.simulate.SOLVERS`. ``solve``: "dense" (any
+    mechanism) or "chain" (the O(N) tip-to-base recursion of :mod:`.chain`, for uniform serial chains).
     """
     if solver.lower() not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {sorted(SOLVERS)}")
@@ -113,10 +115,21 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
         if not isinstance(v, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(v))):
             raise ValueError(f"{name} is not finite")
 
-    def field(t, y, args):
-        m, props = args
-        x, xd = y
-        return xd, accelerations(m, t, x, xd, baumgarte=baumgarte, props=props)
+    if solve == "chain":
+        if baumgarte:
+            raise ValueError("baumgarte terms are available with solve='dense' only")
+        plan = chain_plan(mech)
+
+        def field(t, y, args):
+            x, xd = y
+            return xd, chain_accelerations(args[0], plan, t, x, xd)
+    elif solve == "dense":
+        def field(t, y, args):
+            m, props = args
+            x, xd = y
+            return xd, accelerations(m, t, x, xd, baumgarte=baumgarte, props=props)
+    else:
+        raise ValueError(f"unknown solve {solve!r}; choose 'dense' or 'chain'")
 
     implicit = solver.lower() in IMPLICIT_SOLVERS
     pid = (0.3, 0.3, 0.0) if implicit else (0.4, 1.0, 0.0)
