@@ -72,20 +72,28 @@ def _show(**kwargs):
 
 def fit_rollout(theta0, model: TreeModel, windows: Windows, *, eps: float, max_steps: int = 20,
                 rtol: float = 1e-6, atol: float = 1e-8, ode_rtol: float = 1e-7, ode_atol: float = 1e-9,
-                verbose: bool = True):
+                free=None, verbose: bool = True):
     """Levenberg–Marquardt on :func:`rollout_residuals` from ``theta0``; returns ``(theta, rms_before, rms_after)``
-    (RMS position error in rad). Jacobians by forward-mode differentiation through diffrax."""
+    (RMS position error in rad). Jacobians by forward-mode differentiation through diffrax.
 
-    def residual(theta, _):
-        return rollout_residuals(theta, model, windows, eps=eps, rtol=ode_rtol, atol=ode_atol, adjoint="forward")
+    ``free``: indices of the entries of ``theta`` to fit (default: all); the others stay at ``theta0``.
+    """
+    theta0 = jnp.asarray(theta0, dtype=float)
+    idx = jnp.arange(theta0.size) if free is None else jnp.asarray(np.asarray(free, dtype=int))
+
+    def full(x):
+        return theta0.at[idx].set(x)
+
+    def residual(x, _):
+        return rollout_residuals(full(x), model, windows, eps=eps, rtol=ode_rtol, atol=ode_atol, adjoint="forward")
 
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, verbose=_show if verbose else False)
-    theta0 = jnp.asarray(theta0, dtype=float)
-    rms = jax.jit(lambda th: jnp.sqrt(jnp.mean(residual(th, None) ** 2)))
-    before = float(rms(theta0))
-    sol = optx.least_squares(residual, solver, theta0, max_steps=max_steps, throw=False)
+    x0 = theta0[idx]
+    rms = jax.jit(lambda x: jnp.sqrt(jnp.mean(residual(x, None) ** 2)))
+    before = float(rms(x0))
+    sol = optx.least_squares(residual, solver, x0, max_steps=max_steps, throw=False)
     after = float(rms(sol.value))
     if verbose:
         print(f"  rollout fit: RMS position error {before:.3e} -> {after:.3e} rad "
               f"in {int(sol.stats['num_steps'])} LM steps")
-    return np.asarray(sol.value), before, after
+    return np.asarray(full(sol.value)), before, after
