@@ -62,6 +62,7 @@ def case():
     return model, np.asarray(theta_from_params(pi)), ts, q, qd, tau
 
 
+@pytest.mark.slow
 def test_check_grads_rollout_loss(case):
     model, theta, ts, q, qd, tau = case
     w = make_windows(ts, q, qd, tau, length=6, starts=[40])  # one 0.1 s window
