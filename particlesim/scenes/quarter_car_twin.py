@@ -117,6 +117,7 @@ def twin_rollout(ts: np.ndarray, timestep: float = 1e-4) -> dict[str, np.ndarray
         a_upper = qc._p(8) - qc._com("upper_arm")
         a_knuckle = qc._p(8) - qc._com("knuckle")
         for k in range(len(ts)):
+            mujoco.mj_kinematics(m, d)  # after an RK4 mj_step, xpos is not the kinematics of the new qpos
             chassis.append(d.xpos[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "chassis"), 2])
             wheel.append(d.site_xpos[site, 2])
             pu = d.xpos[ub] + d.xmat[ub].reshape(3, 3) @ a_upper

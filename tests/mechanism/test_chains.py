@@ -34,6 +34,7 @@ def _mujoco(geom, dt):
     per = int(round((TS[1] - TS[0]) / dt))
     out = []
     for k in range(len(TS)):
+        mujoco.mj_kinematics(m, d)  # after an RK4 mj_step, site_xpos is not the kinematics of the new qpos
         out.append(d.site_xpos.copy())
         if k + 1 < len(TS):
             for _ in range(per):
