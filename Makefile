@@ -2,6 +2,8 @@
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
+# pytest-xdist workers: XLA compiles are single-threaded, so one per core
+JOBS   ?= 2
 STAMP  := $(VENV)/.installed-stamp
 
 .PHONY: run test bench clean
@@ -16,9 +18,9 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(PY) -m particlesim.cli main
 
-## test: the whole test suite (float64)
+## test: the whole test suite (float64), one worker per core, each test module kept on one worker
 test: $(STAMP)
-	$(PY) -m pytest -q $(PYTEST_ARGS)
+	$(PY) -m pytest -q -n $(JOBS) --dist loadscope $(PYTEST_ARGS)
 
 ## bench: rerun the benchmarks and rewrite their results
 bench: $(STAMP)
