@@ -32,7 +32,7 @@ NAME = "mechanism_chains"
 SIZES = (2, 4, 8, 16, 32, 64)
 MJX_MAX_N = 4  # MJX 3.17 on deeper chains: N = 8 revolute took 12 ms per forward in a loop, 1.1 s per call and
 # ~3 min in all (measured once, load ~4); N = 64 had not compiled after 3 min
-SIM_MAX_N = 16  # one simulated second costs ~10^3 evaluations: beyond N = 16 the dense solve makes it minutes
+SIM_MAX_N = 8  # one simulated second: revolute N = 16 took 21 s, spherical N = 16 over 2 min (dense solve)
 LOOP = 100  # evaluations per compiled loop (fewer for N > 8: see _loop_len)
 SLOPE_FROM = 8
 SERIES = ("ours accelerations (loop)", "ours accelerations (1 call)", "MuJoCo C mj_forward",
@@ -175,7 +175,7 @@ def markdown(results: dict) -> str:
              f"(1 min), {env['date']}. Per acceleration evaluation (loop = {results['loop']} evaluations (10 for N > 8) in one "
              "compiled loop, no dispatch; 1 call = one jitted call with dispatch); MuJoCo C = `mj_forward` per call; "
              f"1 s sim = Tsit5 rtol 1e-8 wall time per simulated second (N ≤ {results['sim_max_n']} only: beyond, "
-             f"the dense solve makes one simulated second take minutes); MJX for N ≤ {results['mjx_max_n']} only (MJX 3.17 "
+             f"one simulated second took 21 s for revolute N = 16 and over 2 min for spherical N = 16); MJX for N ≤ {results['mjx_max_n']} only (MJX 3.17 "
              "degrades sharply with depth here: N = 8 revolute measured once at 12 ms per forward in a loop and 1.1 s "
              "per call, ~3 min with compiles; N = 64 had not compiled after 3 min).", "",
              "| joint | N | " + " | ".join(short) + " |", "|---|---:|" + "---:|" * len(short)]
