@@ -47,6 +47,23 @@ def main(only: list[str] | None = None) -> None:
     out = RESULTS / "README_tables.md"
     out.write_text("\n".join(sections))
     print(f"wrote {out}")
+    update_readme("\n".join(sections[4:]))
+
+
+README = HERE.parent / "README.md"
+START, END = "<!-- BENCHMARKS:START -->", "<!-- BENCHMARKS:END -->"
+
+
+def update_readme(tables: str) -> None:
+    """Replace the README's block between the BENCHMARKS markers by ``tables``."""
+    text = README.read_text()
+    if START not in text or END not in text:
+        print(f"README has no {START} ... {END} block: not updated")
+        return
+    head, rest = text.split(START, 1)
+    _, tail = rest.split(END, 1)
+    README.write_text(f"{head}{START}\n{tables.strip()}\n{END}{tail}")
+    print(f"updated {README}")
 
 
 if __name__ == "__main__":
