@@ -21,7 +21,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from ..errors import ParseError
+from .urdf import read_urdf
 
 __all__ = ["urdf_for_mujoco", "mujoco_model", "mjx_model", "JointMap"]
 
@@ -38,13 +38,7 @@ def urdf_for_mujoco(urdf: str | Path) -> str:
 
     Raises ``ParseError`` if the text is not a URDF ``<robot>``.
     """
-    text = Path(urdf).read_text() if isinstance(urdf, Path) or not str(urdf).lstrip().startswith("<") else urdf
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as e:
-        raise ParseError(f"URDF is not well-formed XML: {e}") from None
-    if root.tag != "robot":
-        raise ParseError(f"URDF root element must be <robot>, got <{root.tag}>")
+    _, root = read_urdf(urdf)  # one reader for both twins: the same errors for the same files
     for link in root.iter("link"):
         for tag in ("visual", "collision"):
             for el in link.findall(tag):

@@ -77,7 +77,8 @@ def _origin_params(m, c, i_com) -> np.ndarray:
     return np.array([m, *(m * c), j[0, 0], j[0, 1], j[0, 2], j[1, 1], j[1, 2], j[2, 2]])
 
 
-def _read(source: Union[str, os.PathLike]):
+def read_urdf(source: Union[str, os.PathLike]):
+    """``(label, root element)`` of a URDF path or string; :class:`ParseError` if unreadable or not a <robot>."""
     if isinstance(source, str) and source.lstrip().startswith("<"):
         label, text = "<urdf string>", source
     else:
@@ -109,7 +110,7 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
     link/joint for unparsable files, unsupported joint types, kinematic loops, missing inertials on moving links,
     and :class:`~particlesim.errors.InertiaError` for non-physical inertias.
     """
-    label, root = _read(source)
+    label, root = read_urdf(source)
     links = {}
     for el in root.findall("link"):
         name = el.get("name")
