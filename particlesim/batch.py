@@ -1,0 +1,143 @@
+"""Batches of rollouts: ``vmap`` over parameter sets and initial states, split across devices.
+
+Everything in particlesim is a pure function of arrays, so a batch is ``jax.vmap`` of the single case: a batch of
+models is the same pytree with a leading axis on its array leaves (:func:`stack`, or
+``model.with_params(inertia=batched)``), and a batch of states is a ``(B, n)`` array.
+
+:func:`sharded_vmap` runs such a batch on several devices. The batch axis is split over a one-dimensional
+device mesh (:func:`batch_mesh`) with :func:`jax.shard_map`: every device runs the vmapped function on its own
+slice, so an adaptive solver's loop on one device stops when *its* slice is done (no cross-device
+synchronisation per step) and each batch member sees exactly the operations it sees unsharded. The same code runs
+
+* on one CPU (a mesh of one device: plain ``vmap``);
+* on the CPU split into ``k`` host devices (``XLA_FLAGS=--xla_force_host_platform_device_count=k``, set before
+  JAX starts), which is how the tests exercise it;
+* on several GPUs of one machine: :func:`batch_mesh` takes ``jax.devices()``;
+* on several machines: call ``jax.distributed.initialize()`` first in every process; ``jax.devices()`` then lists
+  the devices of all processes, :func:`batch_mesh` spans them, and each process feeds its part of the batch
+  (``jax.make_array_from_process_local_data(NamedSharding(mesh, P("batch")), local_part)``) — see the README.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+
+__all__ = ["AXIS", "batch_mesh", "stack", "param_axes", "sharded_vmap", "shard_batch"]
+
+#: Name of the batch axis of the device mesh.
+AXIS = "batch"
+
+
+def batch_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
+    """A one-dimensional mesh over ``devices`` (default: all of ``jax.devices()``) with the axis :data:`AXIS`."""
+    devs = list(jax.devices() if devices is None else devices)
+    if not devs:
+        raise ValueError("batch_mesh: no devices given")
+    return Mesh(np.asarray(devs, dtype=object), (AXIS,))
+
+
+def stack(items: Sequence[Any]) -> Any:
+    """Stack equal-structure pytrees (e.g. models that differ only in parameter values) along a new leading axis."""
+    items = list(items)
+    if not items:
+        raise ValueError("stack: nothing to stack")
+    structs = {jax.tree.structure(x) for x in items}
+    if len(structs) != 1:
+        raise ValueError("stack: the items differ in structure (static fields, joint layout or None leaves); "
+                         "only parameter values may differ within a batch")
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *items)
+
+
+def param_axes(model: Any, *names: str) -> Any:
+    """``in_axes`` for a model batched only in the parameter fields ``names`` (e.g. ``"inertia"``): those are 0,
+    every other leaf ``None`` (shared by the whole batch). For ``jax.vmap`` and :func:`sharded_vmap`."""
+    axes = jax.tree.map(lambda _: None, model)
+    for n in names:
+        if getattr(model, n, None) is None:
+            raise ValueError(f"param_axes: the model has no array field {n!r}")
+    return eqx.tree_at(lambda m: [getattr(m, n) for n in names], axes, [0] * len(names),
+                       is_leaf=lambda x: x is None)
+
+
+def _full_axes(in_axes, args) -> list:
+    """``in_axes`` (a vmap-style prefix per argument) broadcast to one entry (0 or None) per array leaf."""
+    prefix = tuple(in_axes) if isinstance(in_axes, (tuple, list)) else (in_axes,) * len(args)
+    if len(prefix) != len(args):
+        raise ValueError(f"in_axes has {len(prefix)} entries for {len(args)} arguments")
+    out = []
+    for i, (ax, a) in enumerate(zip(prefix, args)):
+        try:
+            full = jax.tree.map(lambda ax_, sub: jax.tree.map(lambda _: ax_, sub), ax, a,
+                                is_leaf=lambda x: x is None)
+        except ValueError as e:
+            raise ValueError(f"in_axes of argument {i} does not match its structure: {e}") from None
+        for leaf_ax in jax.tree.leaves(full, is_leaf=lambda x: x is None):
+            if leaf_ax not in (0, None):
+                raise ValueError(f"in_axes entries must be 0 (batched along the leading axis) or None, got "
+                                 f"{leaf_ax!r}")
+        out.append(full)
+    return out
+
+
+def _batch_size(args, axes) -> int:
+    sizes = set()
+    for i, (a, ax) in enumerate(zip(args, axes)):
+        for leaf, leaf_ax in zip(jax.tree.leaves(a), jax.tree.leaves(ax, is_leaf=lambda x: x is None)):
+            if leaf_ax == 0 and eqx.is_array(leaf):
+                if leaf.ndim == 0:
+                    raise ValueError(f"argument {i}: a batched leaf needs a leading batch axis, got a scalar")
+                sizes.add(int(leaf.shape[0]))
+    if len(sizes) != 1:
+        raise ValueError(f"batched arguments disagree on the batch size: {sorted(sizes)} "
+                         "(or no batched array was given)")
+    return sizes.pop()
+
+
+def shard_batch(tree: Any, mesh: Mesh) -> Any:
+    """Place a batched pytree on ``mesh`` split along its leading axis (optional: :func:`sharded_vmap` does it)."""
+    sharding = NamedSharding(mesh, P(AXIS))
+    return jax.tree.map(lambda x: jax.device_put(x, sharding) if eqx.is_array(x) else x, tree)
+
+
+def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[int | None] = 0, *,
+                 mesh: Mesh | None = None) -> Callable:
+    """``jax.jit(jax.vmap(fn, in_axes))`` with the batch split across the devices of ``mesh``.
+
+    Args:
+        fn: a function of single (unbatched) arguments returning a pytree of arrays.
+        in_axes: as for ``jax.vmap`` but with entries 0 (batched along the leading axis) or ``None`` (the same
+            for all members, replicated on every device), per argument or as a pytree prefix of it
+            (:func:`param_axes` builds one for a model batched in some parameter fields).
+        mesh: a one-dimensional mesh with axis :data:`AXIS` (default :func:`batch_mesh` over all devices).
+
+    Returns:
+        A jitted function of the batched arguments whose outputs carry the batch on their leading axis, split
+        across the mesh. Each member's result equals ``vmap``'s (and a loop's) to the last bit on CPU devices;
+        the batch size must be a multiple of the number of devices (pad it otherwise).
+    """
+    mesh = batch_mesh() if mesh is None else mesh
+    if mesh.axis_names != (AXIS,):
+        raise ValueError(f"sharded_vmap needs a one-dimensional mesh with axis {AXIS!r}, got {mesh.axis_names}")
+    ndev = mesh.devices.size
+
+    @jax.jit
+    def run(*args):
+        axes = _full_axes(in_axes, args)
+        b = _batch_size(args, axes)
+        if b % ndev:
+            raise ValueError(f"a batch of {b} does not split evenly over {ndev} devices; pad it to a multiple "
+                             f"of {ndev}")
+        specs = tuple(jax.tree.map(lambda ax: P() if ax is None else P(AXIS), full, is_leaf=lambda x: x is None)
+                      for full in axes)
+        inner = jax.vmap(fn, in_axes=tuple(axes))
+        # check_vma=False: diffrax's loops carry values that are per-device by construction.
+        return jax.shard_map(inner, mesh=mesh, in_specs=specs, out_specs=P(AXIS), check_vma=False)(*args)
+
+    return run
