@@ -9,6 +9,9 @@
   stage, as the MuJoCo C twin's ``mjcb_passive`` (a force held over a step would be first order, MUJOCO-TWINS.md).
   The RK4 tableau and position integration (quaternions integrated by their body-frame angular velocity) follow
   MuJoCo's ``mj_RungeKutta``.
+* :func:`forced_rk4_rollout` is the same RK4 loop around ``mjx.forward`` for any model driven by a time-dependent
+  generalised force ``force(t)`` (e.g. Krang's arm torques), applied in ``qfrc_applied`` at every stage at the
+  stage time (as the MuJoCo C twin's ``mjcb_passive`` reading ``d.time``).
 
 MJX 3.17 fails under ``jax_numpy_rank_promotion="raise"``; every function here traces under "allow". The rollouts
 are built once per model structure: the MJX model is an argument, so another step size does not recompile.
@@ -22,7 +25,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-__all__ = ["chain_rollout", "quarter_car_rollout", "integrate_pos"]
+__all__ = ["chain_rollout", "quarter_car_rollout", "forced_rk4_rollout", "integrate_pos"]
 
 _RK4 = np.array([[0.0, 1 / 6], [0.5, 1 / 3], [0.5, 1 / 3], [1.0, 1 / 6]])  # (stage offset a_i, weight b_i)
 
@@ -124,6 +127,40 @@ def quarter_car_rollout(m: mujoco.MjModel, n_save: int, *, ground: float, tyre: 
             rest = jax.lax.scan(outer, d, None, length=n_save - 1)[1]
             out = jnp.concatenate([observe(mx, d)[None], rest])
         return out[:, 0], out[:, 1], out[:, 2]
+
+    mx = mjx.put_model(m)
+    return jax.jit(fn), mx, _start(m, mx)
+
+
+def forced_rk4_rollout(m: mujoco.MjModel, n_save: int, force, *, observe=lambda mx, d: d.qpos):
+    """``(fn, mx, d0)``: ``fn(mx, d0, per)`` runs ``(n_save - 1) * per`` RK4 steps of ``mx.opt.timestep`` with
+    ``qfrc_applied = force(t)`` (``(nv,)``, jnp, MuJoCo order) at every stage time ``t = time + a_i dt``, and returns
+    ``observe(mx, d)`` every ``per`` steps (the first at ``d0``), stacked ``(n_save, ...)``. Set the start state
+    with ``d0.replace(qpos=..., qvel=...)``; ``fn`` is jitted, ``per`` and the model's numbers are traced."""
+
+    def step(mx, d):
+        dt = mx.opt.timestep
+        q0, v0, t0 = d.qpos, d.qvel, d.time
+
+        def stage(c, ab):
+            kv, ka, sv, sa = c
+            t = t0 + ab[0] * dt
+            ds = mjx.forward(mx, d.replace(qpos=integrate_pos(m, q0, kv, ab[0] * dt), qvel=v0 + ab[0] * dt * ka,
+                                           time=t, qfrc_applied=force(t)))
+            return (ds.qvel, ds.qacc, sv + ab[1] * ds.qvel, sa + ab[1] * ds.qacc), None
+
+        z = jnp.zeros_like(v0)
+        (_, _, vel, acc), _ = jax.lax.scan(stage, (z, z, z, z), jnp.asarray(_RK4))
+        return d.replace(qpos=integrate_pos(m, q0, vel, dt), qvel=v0 + dt * acc, time=t0 + dt)
+
+    def fn(mx, d, per):
+        def outer(d, _):
+            d = jax.lax.fori_loop(0, per, lambda i, d: step(mx, d), d)
+            return d, observe(mx, d)
+
+        with jax.numpy_rank_promotion("allow"):
+            rest = jax.lax.scan(outer, d, None, length=n_save - 1)[1]
+            return jnp.concatenate([observe(mx, d)[None], rest])
 
     mx = mjx.put_model(m)
     return jax.jit(fn), mx, _start(m, mx)
