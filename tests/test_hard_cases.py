@@ -95,11 +95,13 @@ _RUNS = {}
 
 
 def _slider_run(slider, solver):
-    """One compiled run per solver: ``(stiffness, damping, t1) -> Solution`` saved at 11 times in [0, t1]."""
+    """One compiled run per solver: ``(stiffness, damping, t1) -> Solution`` saved at 11 times in [0, t1]; failures
+    are reported in ``ok`` (every caller checks it)."""
     if solver not in _RUNS:
         _RUNS[solver] = jax.jit(lambda k, c, t1: simulate(
             forward_dynamics, slider, jnp.array([X0]), jnp.zeros(1), 0.0, t1, control=_spring(k, c), solver=solver,
-            rtol=STIFF_RTOL, atol=STIFF_ATOL, saveat_ts=jnp.linspace(0.0, t1, 11), max_steps=STIFF_MAX_STEPS))
+            rtol=STIFF_RTOL, atol=STIFF_ATOL, saveat_ts=jnp.linspace(0.0, t1, 11), max_steps=STIFF_MAX_STEPS,
+            throw=False))
     return _RUNS[solver]
 
 
@@ -122,6 +124,7 @@ def test_stiff_spring_damper_explicit_steps_are_stability_bound(stiff_runs):
     lam_fast = abs(min(np.linalg.eigvals(np.array([[0.0, 1.0], [-STIFFNESS, -HEAVY_DAMPING]])).real))
     radius = _real_stability_interval(diffrax.Tsit5.tableau)
     bound = STIFF_T1 * lam_fast / radius  # steps needed to stay stable on the fast mode
+    assert all(bool(r.ok) for r in stiff_runs.values())
     n_explicit, n_implicit = int(stiff_runs["tsit5"].steps), int(stiff_runs["kvaerno5"].steps)
     print(f"\n|lambda_fast| = {lam_fast:.6g} 1/s, Tsit5 real stability interval {radius:.4f}, stability bound "
           f"{bound:.0f} steps; tsit5 {n_explicit} steps, kvaerno5 {n_implicit} steps")
@@ -131,10 +134,9 @@ def test_stiff_spring_damper_explicit_steps_are_stability_bound(stiff_runs):
 
 
 def test_stiff_spring_damper_small_step_budget_is_reported(slider):
-    # (That throw=True raises instead is tested in test_simulate.py.)
-    sol = simulate(forward_dynamics, slider, jnp.array([X0]), jnp.zeros(1), 0.0, STIFF_T1,
-                   control=_spring(STIFFNESS, HEAVY_DAMPING), solver="tsit5", rtol=STIFF_RTOL, atol=STIFF_ATOL,
-                   max_steps=500, throw=False)
+    # Over 3 s the explicit solver would need ~85 000 steps (stability bound), over its budget of STIFF_MAX_STEPS:
+    # the run must say so (simulate(throw=True) raises instead; tested in test_simulate.py).
+    sol = _slider_run(slider, "tsit5")(STIFFNESS, HEAVY_DAMPING, 3.0)
     assert not bool(sol.ok) and sol.status == diffrax.RESULTS.max_steps_reached
     assert np.all(np.isnan(sol.q)) and np.all(np.isnan(sol.qd))  # nothing that looks like a valid trajectory
 
@@ -225,3 +227,67 @@ def test_placements_beyond_the_threshold_would_give_garbage():
     assert err > 1e-2
     with pytest.raises(PlacementError, match="wheel: the 4 primary particles are coplanar or nearly so"):
         equivalent_particles(BODY, prim, name="wheel")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# 6. float32 against float64
+# ---------------------------------------------------------------------------------------------------------------
+# ``import particlesim`` turns x64 on; ``jax.enable_x64(False)`` runs a block in float32 (models must be built
+# inside it, so that their parameters are float32). simulate() takes the default float type of the mode.
+
+EPS32 = float(np.finfo(np.float32).eps)
+#: Forward dynamics at random states: max |qdd32 - qdd64| / max |qdd64| <= this factor x cond(A) x eps32.
+F32_ACC_FACTOR = 1.0
+#: 1 s rollout of the hanging Krang (Tsit5, rtol = atol = 1e-6 in both precisions) against a float64 Tsit5
+#: reference at 1e-12: largest joint-angle error [rad].
+F32_ROLLOUT_ATOL = 1e-2
+F64_ROLLOUT_ATOL = 1e-3  # the same run in float64: the truncation error alone
+F32_RTOL = 1e-6
+
+
+def _hanging_krang_start(model):
+    q0 = np.random.default_rng(2).uniform(-0.2, 0.2, model.nq)
+    q0[0] += np.pi  # JLWheel: the body hangs below the wheel axis
+    return q0
+
+
+def test_float32_forward_dynamics_error_is_bounded():
+    m64 = krang_urdf()
+    rng = np.random.default_rng(0)
+    qs, qds = rng.uniform(-2.0, 2.0, (16, m64.nq)), rng.normal(size=(16, m64.nq))
+    fd = jax.vmap(forward_dynamics, in_axes=(None, 0, 0, 0))
+    a64 = np.asarray(jax.jit(fd)(m64, qs, qds, np.zeros_like(qs)))
+    with jax.enable_x64(False):
+        m32 = krang_urdf()
+        a32 = jax.jit(fd)(m32, jnp.asarray(qs, jnp.float32), jnp.asarray(qds, jnp.float32),
+                          jnp.zeros(qs.shape, jnp.float32))
+        assert a32.dtype == jnp.float32
+    a32 = np.asarray(a32, dtype=np.float64)
+    cond = np.linalg.cond(np.asarray(jax.jit(jax.vmap(mass_matrix, in_axes=(None, 0)))(m64, qs)))
+    rel = np.abs(a32 - a64).max(axis=1) / np.abs(a64).max(axis=1)
+    print(f"\nfloat32 forward dynamics, 16 states: relative error max {rel.max():.2e}, median {np.median(rel):.2e} "
+          f"(cond(A) up to {cond.max():.1e}, cond x eps32 up to {cond.max() * EPS32:.1e})")
+    assert np.all(np.isfinite(a32)) and np.all(rel <= F32_ACC_FACTOR * cond * EPS32)
+
+
+def test_float32_rollout_error_is_bounded():
+    m64 = krang_urdf()
+    q0 = _hanging_krang_start(m64)
+    ts = np.linspace(0.0, 1.0, 11)
+
+    @jax.jit
+    def run(model, q, tol):  # tolerances traced: the reference and the run share one compilation per precision
+        return simulate(forward_dynamics, model, q, jnp.zeros_like(q), 0.0, 1.0, solver="tsit5", rtol=tol,
+                        atol=tol, saveat_ts=jnp.asarray(ts, q.dtype), max_steps=4096)
+
+    ref = run(m64, jnp.asarray(q0), 1e-12)
+    r64 = run(m64, jnp.asarray(q0), F32_RTOL)
+    with jax.enable_x64(False):
+        r32 = run(krang_urdf(), jnp.asarray(q0, jnp.float32), jnp.float32(F32_RTOL))
+        assert r32.q.dtype == jnp.float32
+    err32 = np.abs(np.asarray(r32.q, np.float64) - np.asarray(ref.q)).max()
+    err64 = np.abs(np.asarray(r64.q) - np.asarray(ref.q)).max()
+    print(f"\n1 s hanging Krang, tsit5 rtol {F32_RTOL:g}: float32 error {err32:.2e} rad ({int(r32.steps)} steps, "
+          f"{int(r32.rejected)} rejected), float64 error {err64:.2e} rad ({int(r64.steps)} steps)")
+    assert bool(r32.ok) and np.all(np.isfinite(np.asarray(r32.q)))
+    assert err32 <= F32_ROLLOUT_ATOL and err64 <= F64_ROLLOUT_ATOL
