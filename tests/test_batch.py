@@ -97,15 +97,17 @@ def test_sharded_batch_on_eight_host_devices_equals_unsharded():
     assert "does not split evenly over 8 devices" in r["uneven"]
 
 
-def test_batch_of_parameter_sets_equals_single_rollouts(krang):
-    """One device: sharded_vmap over a mesh of one = vmap; every member = its own rollout."""
+@pytest.mark.parametrize("chunk", [None, 2])
+def test_batch_of_parameter_sets_equals_single_rollouts(krang, chunk):
+    """One device, whole batch vectorised (chunk None) or looped in chunks of 2 (the last one short): every
+    member equals its own rollout."""
     rng = np.random.default_rng(3)
     b = 3
     inertias = krang.inertia[None] * jnp.asarray(rng.uniform(0.8, 1.2, (b, krang.nq, 1)))
     q0 = jnp.asarray(rng.uniform(-0.5, 0.5, (b, krang.nq)))
     qd0 = jnp.asarray(rng.normal(0.0, 0.3, (b, krang.nq)))
     axes = (param_axes(krang, "inertia"), 0, 0)
-    q, qd = sharded_vmap(_rollout, axes, mesh=batch_mesh(jax.devices()[:1]))(
+    q, qd = sharded_vmap(_rollout, axes, mesh=batch_mesh(jax.devices()[:1]), chunk=chunk)(
         krang.with_params(inertia=inertias), q0, qd0)
     single = jax.jit(_rollout)
     for i in range(b):
@@ -130,5 +132,9 @@ def test_bad_batches_are_refused(krang):
         sharded_vmap(lambda a: a, in_axes=1)(jnp.ones((3, 2)))
     with pytest.raises(ValueError, match="leading batch axis"):
         f(jnp.ones(()), jnp.ones(()))
+    with pytest.raises(ValueError, match="chunk must be a positive integer"):
+        sharded_vmap(lambda a: a, chunk=0)
+    with pytest.raises(ValueError, match="does not match its structure"):
+        sharded_vmap(lambda m: m.inertia, in_axes=(param_axes(krang, "inertia"),))(jnp.ones(3))
     with pytest.raises(ValueError, match="no array field 'payload'"):
         param_axes(krang, "payload")
