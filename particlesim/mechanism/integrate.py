@@ -7,6 +7,12 @@ velocities onto ``J xd = 0``. The projection leaves the method's order intact (t
 the local error), needs no tuning constant (unlike Baumgarte's), and keeps the residuals at round-off, which the
 tests measure. Saved outputs are projected the same way. It is a smooth function of the state and parameters,
 so gradients pass through it.
+
+Adjoints: "checkpoint" (default), "direct" and "forward" differentiate the discrete computation, projections
+included. "backsolve" integrates the continuous adjoint equations of the vector field backwards in time; the
+projection is a map applied between steps, not part of that vector field, so the backward solve would return the
+sensitivities of a different (unprojected) flow. It is therefore refused with ``stabilise=True`` and allowed with
+``stabilise=False``, where the integrated equations are exactly the ones it differentiates.
 """
 
 from __future__ import annotations
@@ -25,9 +31,17 @@ from .chain import chain_accelerations, chain_plan
 from .dynamics import accelerations, mass_properties
 from .model import Mechanism
 
-__all__ = ["ProjectedSolver", "project", "simulate_mechanism"]
+__all__ = ["ADJOINTS", "ProjectedSolver", "project", "simulate_mechanism"]
 
 _GN_ITERATIONS = 3
+
+#: Adjoints by name (the names :func:`particlesim.simulate.simulate` takes).
+ADJOINTS: dict[str, Callable[[], diffrax.AbstractAdjoint]] = {
+    "checkpoint": diffrax.RecursiveCheckpointAdjoint,
+    "direct": diffrax.DirectAdjoint,
+    "forward": diffrax.ForwardMode,
+    "backsolve": diffrax.BacksolveAdjoint,
+}
 
 
 def project(mech: Mechanism, x, xd):
@@ -89,8 +103,53 @@ class ProjectedSolver(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSol
         return self.solver.func(terms, t0, y0, args)
 
 
-def _project_y(y, args):
-    return project(args[0], *y)
+def _adjoint(adjoint, stabilise: bool) -> diffrax.AbstractAdjoint:
+    if adjoint is None:
+        adjoint = diffrax.RecursiveCheckpointAdjoint()
+    elif isinstance(adjoint, str):
+        if adjoint not in ADJOINTS:
+            raise ValueError(f"unknown adjoint {adjoint!r}; choose one of {sorted(ADJOINTS)} or a diffrax adjoint")
+        adjoint = ADJOINTS[adjoint]()
+    elif not isinstance(adjoint, diffrax.AbstractAdjoint):
+        raise ValueError(f"adjoint must be a name in {sorted(ADJOINTS)} or a diffrax adjoint, got {adjoint!r}")
+    if stabilise and isinstance(adjoint, diffrax.BacksolveAdjoint):
+        raise ValueError(
+            "adjoint 'backsolve' cannot differentiate a projected rollout (stabilise=True): it integrates the adjoint "
+            "equations of the unprojected vector field backwards in time and cannot see the coordinate projection "
+            "applied after every step, so its gradients would belong to a different flow. Use 'checkpoint', "
+            "'direct' or 'forward', or stabilise=False (then with Baumgarte terms if drift matters)")
+    return adjoint
+
+
+def _parameter_label(mech: Mechanism, path) -> str:
+    """Readable name of a floating leaf of the mechanism from its pytree path, e.g. ``spring 'suspension' stiffness``."""
+    keys = [getattr(k, "name", getattr(k, "idx", getattr(k, "key", None))) for k in path]
+    head = keys[0]
+    named = {"springs": "spring", "tyres": "tyre", "points": "point"}
+    if head in ("body_mass", "body_com", "body_inertia", "body_primaries") and len(keys) > 1:
+        return f"body '{mech.bodies[keys[1]].name}' {head.removeprefix('body_')}"
+    if head in named and len(keys) > 2:
+        return f"{named[head]} '{getattr(mech, head)[keys[1]].name}' {keys[2]}"
+    return str(head)
+
+
+def _finite_parameters(mech: Mechanism, x0):
+    """Refuse non-finite floating leaves of ``mech`` (e.g. swapped in with ``eqx.tree_at`` after the build): eagerly
+    with their names when the values are concrete, else by a run-time error (under jit, grad, vmap)."""
+    flat = [(path, leaf) for path, leaf in jax.tree_util.tree_flatten_with_path(mech)[0]
+            if eqx.is_inexact_array(leaf) or isinstance(leaf, (float, complex))]
+    if not flat:
+        return x0
+    labels = [_parameter_label(mech, path) for path, _ in flat]
+    if not any(isinstance(leaf, jax.core.Tracer) for _, leaf in flat):
+        bad = [lab for lab, (_, leaf) in zip(labels, flat) if not np.all(np.isfinite(np.asarray(leaf)))]
+        if bad:
+            raise ValueError(f"simulate_mechanism: the mechanism parameters are not finite: {', '.join(bad)} "
+                             "(NaN or inf)")
+        return x0
+    bad = jnp.stack([~jnp.all(jnp.isfinite(leaf)) for _, leaf in flat])
+    msgs = [f"simulate_mechanism: the mechanism parameters are not finite: {lab} (NaN or inf)" for lab in labels]
+    return eqx.branched_error_if(x0, jnp.any(bad), jnp.argmax(bad), msgs)
 
 
 def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver: str = "tsit5",
@@ -103,9 +162,15 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
     ``stabilise`` projects after every step (see module docstring); ``baumgarte`` optionally adds Baumgarte terms
     instead of (or besides) it. Solver names as in :data:`particlesim.simulate.SOLVERS`. ``solve``: "dense" (any
     mechanism) or "chain" (the O(N) tip-to-base recursion of :mod:`.chain`, for uniform serial chains).
+    ``adjoint``: a name in :data:`ADJOINTS` or a diffrax adjoint; ``None`` is "checkpoint". "backsolve" requires
+    ``stabilise=False`` (module docstring).
+
+    Raises ``ValueError`` for unknown names, wrong shapes, a non-finite initial state or non-finite mechanism
+    parameters (at run time under jit); the error names the offending parameter.
     """
     if solver.lower() not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {sorted(SOLVERS)}")
+    adjoint = _adjoint(adjoint, stabilise)
     x0 = jnp.asarray(x0, dtype=float)
     xd0 = jnp.asarray(xd0, dtype=float)
     if x0.shape != (mech.n_coords,) or xd0.shape != x0.shape:
@@ -114,6 +179,18 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
     for name, v in (("x0", x0), ("xd0", xd0)):
         if not isinstance(v, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(v))):
             raise ValueError(f"{name} is not finite")
+    x0 = _finite_parameters(mech, x0)
+
+    # The mechanism travels to the solver as its flat list of leaves (rebuilt inside from the static tree
+    # structure): diffrax 0.7's BacksolveAdjoint fails on empty tuples in ``args`` (a mechanism without tyres or
+    # applied forces has some).
+    leaves, treedef = jax.tree_util.tree_flatten(mech)
+
+    def unpack(args):
+        return jax.tree_util.tree_unflatten(treedef, args[0]), args[1]
+
+    def project_y(y, args):
+        return project(unpack(args)[0], *y)
 
     if solve == "chain":
         if baumgarte:
@@ -122,10 +199,10 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
 
         def field(t, y, args):
             x, xd = y
-            return xd, chain_accelerations(args[0], plan, t, x, xd)
+            return xd, chain_accelerations(unpack(args)[0], plan, t, x, xd)
     elif solve == "dense":
         def field(t, y, args):
-            m, props = args
+            m, props = unpack(args)
             x, xd = y
             return xd, accelerations(m, t, x, xd, baumgarte=baumgarte, props=props)
     else:
@@ -140,12 +217,13 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
     if implicit:
         kw["root_finder"] = diffrax.VeryChord(rtol=rtol, atol=atol, norm=controller.norm)
     inner = SOLVERS[solver.lower()](**kw)
-    slv = ProjectedSolver(inner, _project_y) if stabilise else inner
+    slv = ProjectedSolver(inner, project_y) if stabilise else inner
     saveat = diffrax.SaveAt(t0=True, t1=True) if saveat_ts is None else diffrax.SaveAt(ts=jnp.asarray(saveat_ts))
     sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(field), slv, t0=t0, t1=t1, dt0=dt0, y0=(x0, xd0), args=(mech, mass_properties(mech)), saveat=saveat,
+        diffrax.ODETerm(field), slv, t0=t0, t1=t1, dt0=dt0, y0=(x0, xd0), args=(leaves, mass_properties(mech)),
+        saveat=saveat,
         stepsize_controller=controller, max_steps=max_steps, throw=throw,
-        adjoint=adjoint if adjoint is not None else diffrax.RecursiveCheckpointAdjoint(),
+        adjoint=adjoint,
         progress_meter=diffrax.TqdmProgressMeter() if progress else diffrax.NoProgressMeter())
     xs, xds = sol.ys
     if stabilise:
