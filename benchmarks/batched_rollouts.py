@@ -1,0 +1,302 @@
+"""Batched rollouts of Krang: 1024 parameter sets and initial states, ours (vmap) against MJX (vmap), MuJoCo C and
+Pinocchio (loops), float64, CPU.
+
+Scene: the fixed-wheel Krang (18 joints) falling under gravity for 0.5 s from a perturbed pose. Member k scales
+every link's inertial parameters (mass, first moment and rotational inertia together, so the centre of mass
+stays put) by its own factor in [0.8, 1.2] and starts from its own pose. Every method is run at the setting that
+reaches a final joint-angle error ≤ 1e-6 rad on the checked members (error against ours, Dopri8 at rtol 1e-12,
+per member):
+
+* ours: :func:`particlesim.batch.sharded_vmap` of ``simulate`` (Tsit5, adaptive), looping over chunks of 4
+  members; and, for comparison, the whole batch vectorised (``vmap``: the members step together until the slowest
+  is done, and every step carries the whole batch), measured on 128 members. Compile reported separately. Steps
+  = mean accepted steps per member;
+* MJX: ``mjx.step`` (RK4) vmapped over the batch of models (``body_mass``, ``body_inertia``) and states, in a
+  ``lax.scan``. MJX is timed on a short run of the batch and its cost per batched step is multiplied by the steps
+  the horizon needs at the chosen dt (stated in the table: a full run would take minutes). The dt is chosen by
+  the error MuJoCo C's RK4 (the same integrator, equal to MJX to 1e-15 on this tree) reaches on the members;
+* MuJoCo C: ``mj_step`` (RK4) per member in a Python loop, one core;
+* Pinocchio: RK4 around ``pin.aba`` per member in a Python loop (the loop and the RK4 combination in Python; ABA
+  itself is C++).
+
+Rollouts/s and member-steps/s are for the whole batch. Run: ``python -m benchmarks.batched_rollouts``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+
+import particlesim  # noqa: F401  (float64)
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from particlesim.batch import param_axes, sharded_vmap
+from particlesim.data import data_dir
+from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
+from particlesim.simulate import simulate
+from particlesim.tree import forward_dynamics, load_urdf
+
+from ._common import RESULTS, environment, median_time, timed
+
+NAME = "batched_rollouts"
+URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
+GRAVITY = (0.0, -9.81, 0.0)
+BATCH = 1024
+T_END = 0.5
+TARGET = 1e-6  # rad, final joint angles
+CHECK = 6  # members whose error is measured against the reference
+OURS_RTOLS = (1e-7,)
+CHUNK = 4
+VMAP_MEMBERS = 128
+RK4_DTS = (2e-3, 1e-3, 5e-4, 2.5e-4)
+MJX_TIMED_STEPS = 20
+PIN_MEMBERS = 3
+
+
+def _members(model, rng):
+    scale = rng.uniform(0.8, 1.2, (BATCH, model.nq))
+    q0 = 0.4 * rng.uniform(-1.0, 1.0, (BATCH, model.nq))
+    return scale, q0
+
+
+def run() -> dict:
+    started = time.perf_counter()
+    path = data_dir() / URDF
+    model = load_urdf(path, gravity=GRAVITY)
+    n = model.nq
+    scale, q0 = _members(model, np.random.default_rng(0))
+    inertias = jnp.asarray(np.asarray(model.inertia)[None] * scale[:, :, None])
+    jq0, jqd0 = jnp.asarray(q0), jnp.zeros((BATCH, n))
+    rows = []
+
+    def ours(m, q0, qd0, rtol, atol, solver="tsit5"):
+        s = simulate(forward_dynamics, m, q0, qd0, 0.0, T_END, solver=solver, rtol=rtol, atol=atol)
+        return s.q[-1], s.steps
+
+    # Reference per checked member: Dopri8 at rtol 1e-12.
+    ref_fn = jax.jit(lambda m, q0, qd0: ours(m, q0, qd0, 1e-12, 1e-14, "dopri8"))
+    ref = np.stack([np.asarray(ref_fn(model.with_params(inertia=inertias[k]), jq0[k], jqd0[k])[0])
+                    for k in range(CHECK)])
+
+    def err(qf):
+        return float(np.max(np.abs(np.asarray(qf)[:CHECK] - ref)))
+
+    # Ours: the batch through sharded_vmap (one CPU device here), looped in chunks of CHUNK members, and for
+    # comparison the whole batch vectorised (measured on VMAP_MEMBERS members: it is slower per member).
+    axes = (param_axes(model, "inertia"), 0, 0, None, None)
+    models = model.with_params(inertia=inertias)
+    for chunk, b in ((CHUNK, BATCH), (None, VMAP_MEMBERS)):
+        f = sharded_vmap(ours, axes, chunk=chunk)
+        for rtol in OURS_RTOLS:
+            r, a = jnp.asarray(rtol), jnp.asarray(rtol * 1e-2)
+            args = (model.with_params(inertia=inertias[:b]), jq0[:b], jqd0[:b], r, a)
+            comp, g = timed(lambda: f.lower(*args).compile())
+            # One timed call of the compiled batch (it runs for seconds: dispatch and warm-up are noise).
+            wall, (qf, steps) = timed(lambda: jax.block_until_ready(g(*args)))
+            steps = np.asarray(steps)
+            how = (f"chunks of {chunk} (lax.map)" if chunk else "whole batch vectorised (vmap)")
+            note = (f"{how}; steps per member: max {int(steps.max())}, mean {steps.mean():.0f}" +
+                    ("" if b == BATCH else f"; {b} members timed, x {BATCH // b}"))
+            rows.append({"method": f"ours, {how}", "setting": f"tsit5 rtol {rtol:g}", "batch": BATCH,
+                         "wall_s": wall * BATCH / b, "error": err(qf), "steps": int(round(steps.mean())),
+                         "compile_s": comp, "note": note})
+            print(rows[-1], flush=True)
+
+    # MuJoCo C RK4: error per dt on the checked members, and the per-member loop cost.
+    mj = mujoco_model(path, gravity=GRAVITY, integrator="rk4")
+    jm = JointMap(mj, model.joint_names)
+    # Our links are MuJoCo's bodies with a joint plus the bodies welded to them (merged into the link by the URDF
+    # loader, e.g. gripper plates): scale each MuJoCo body by its link's factor; bodies welded to the world stay.
+    links = []
+    for b in range(mj.nbody):
+        a = b
+        while a > 0 and mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_BODY, a) not in model.link_names:
+            a = int(mj.body_parentid[a])
+        links.append(model.link_names.index(mujoco.mj_id2name(mj, mujoco.mjtObj.mjOBJ_BODY, a)) if a > 0 else -1)
+    bodies = [b for b in range(mj.nbody) if links[b] >= 0]
+    body_link = [links[b] for b in bodies]
+    scale_b = scale[:, body_link]  # (BATCH, len(bodies)): each MuJoCo body's factor
+    mass0, inert0 = mj.body_mass.copy(), mj.body_inertia.copy()
+    data = mujoco.MjData(mj)
+
+    def c_rollout(k, dt):
+        mj.opt.timestep = dt
+        mj.body_mass[:] = mass0
+        mj.body_inertia[:] = inert0
+        mj.body_mass[bodies] = mass0[bodies] * scale_b[k]
+        mj.body_inertia[bodies] = inert0[bodies] * scale_b[k][:, None]
+        mujoco.mj_resetData(mj, data)
+        data.qpos[:] = jm.to_mujoco(q0[k])
+        for _ in range(int(round(T_END / dt))):
+            mujoco.mj_step(mj, data)
+        return jm.from_mujoco(data.qpos.copy())
+
+    c_err = {dt: float(max(np.max(np.abs(c_rollout(k, dt) - ref[k])) for k in range(CHECK))) for dt in RK4_DTS}
+    ok = [dt for dt in RK4_DTS if c_err[dt] <= TARGET]
+    dt = max(ok) if ok else min(RK4_DTS)
+    print(f"MuJoCo C RK4 error by dt: {c_err}; chosen dt {dt:g}", flush=True)
+    n_steps = int(round(T_END / dt))
+    t_c = median_time(lambda: c_rollout(0, dt), number=1, repeat=3)
+    rows.append({"method": "MuJoCo C loop (RK4)", "setting": f"dt {dt:g}", "batch": BATCH, "wall_s": t_c * BATCH,
+                 "error": c_err[dt], "steps": n_steps, "compile_s": None,
+                 "note": f"one member timed ({t_c * 1e3:.1f} ms), x {BATCH}; one core"})
+    print(rows[-1], flush=True)
+    mj.body_mass[:], mj.body_inertia[:] = mass0, inert0
+
+    # MJX, vmapped over models and states.
+    from mujoco import mjx
+
+    mx = mjx_model(mujoco_model(path, gravity=GRAVITY, integrator="rk4", timestep=dt))
+    bm = jnp.asarray(np.tile(mass0, (BATCH, 1)))
+    bi = jnp.asarray(np.tile(inert0, (BATCH, 1, 1)))
+    bm = bm.at[:, bodies].multiply(jnp.asarray(scale_b))
+    bi = bi.at[:, bodies].multiply(jnp.asarray(scale_b)[:, :, None])
+    with jax.numpy_rank_promotion("allow"):
+        d0 = jax.jit(mjx.forward)(mx, mjx.put_data(mj, mujoco.MjData(mj)))
+
+    def mjx_roll(bm, bi, qpos, length):
+        m = mx.replace(body_mass=bm, body_inertia=bi)
+        d = d0.replace(qpos=qpos)
+        return jax.lax.scan(lambda c, _: (mjx.step(m, c), None), d, None, length=length)[0].qpos
+
+    mqpos = jnp.asarray(jm.to_mujoco(q0))
+    with jax.numpy_rank_promotion("allow"):
+        comp, g = timed(lambda: jax.jit(jax.vmap(mjx_roll, in_axes=(0, 0, 0, None)), static_argnums=3)
+                        .lower(bm, bi, mqpos, MJX_TIMED_STEPS).compile())
+        t_short = median_time(lambda: g(bm, bi, mqpos), number=1, repeat=2, block=jax.block_until_ready)
+        one = jax.jit(mjx_roll, static_argnums=3)
+        check = np.asarray(one(bm[0], bi[0], mqpos[0], MJX_TIMED_STEPS))
+    mj.opt.timestep = dt
+    mujoco.mj_resetData(mj, data)
+    mj.body_mass[bodies] = mass0[bodies] * scale_b[0]
+    mj.body_inertia[bodies] = inert0[bodies] * scale_b[0][:, None]
+    data.qpos[:] = jm.to_mujoco(q0[0])
+    for _ in range(MJX_TIMED_STEPS):
+        mujoco.mj_step(mj, data)
+    mjx_vs_c = float(np.max(np.abs(check - data.qpos)))
+    mj.body_mass[:], mj.body_inertia[:] = mass0, inert0
+    per_step = t_short / MJX_TIMED_STEPS
+    rows.append({"method": "MJX vmap (RK4)", "setting": f"dt {dt:g}", "batch": BATCH, "wall_s": per_step * n_steps,
+                 "error": c_err[dt], "steps": n_steps, "compile_s": comp,
+                 "note": f"{MJX_TIMED_STEPS} batched steps timed ({per_step * 1e3:.0f} ms each), x {n_steps}; "
+                         f"MJX = MuJoCo C to {mjx_vs_c:.0e} rad after {MJX_TIMED_STEPS} steps"})
+    print(rows[-1], flush=True)
+
+    # Pinocchio ABA + RK4 in a Python loop.
+    import pinocchio as pin
+
+    pm = pin.buildModelFromXML(urdf_for_mujoco(path))
+    pm.gravity.linear = np.asarray(GRAVITY)
+    pd = pm.createData()
+    assert list(pm.names[1:]) == list(model.joint_names)
+    base = [pin.Inertia(pm.inertias[j]) for j in range(pm.njoints)]
+
+    def pin_rollout(k):
+        for j in range(1, pm.njoints):
+            b = base[j]
+            pm.inertias[j] = pin.Inertia(b.mass * scale[k][j - 1], b.lever, b.inertia * scale[k][j - 1])
+        q, v = q0[k].copy(), np.zeros(n)
+        z = np.zeros(n)
+        f = lambda q, v: pin.aba(pm, pd, q, v, z)  # noqa: E731
+        for _ in range(n_steps):
+            a1 = f(q, v)
+            a2 = f(q + 0.5 * dt * v, v + 0.5 * dt * a1)
+            v2 = v + 0.5 * dt * a1
+            a3 = f(q + 0.5 * dt * v2, v + 0.5 * dt * a2)
+            v3 = v + 0.5 * dt * a2
+            a4 = f(q + dt * v3, v + dt * a3)
+            v4 = v + dt * a3
+            q = q + dt / 6 * (v + 2 * v2 + 2 * v3 + v4)
+            v = v + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+        return q
+
+    t0 = time.perf_counter()
+    pin_q = [pin_rollout(k) for k in range(PIN_MEMBERS)]
+    t_pin = (time.perf_counter() - t0) / PIN_MEMBERS
+    pin_err = float(max(np.max(np.abs(pin_q[k] - ref[k])) for k in range(PIN_MEMBERS)))
+    rows.append({"method": "Pinocchio loop (ABA + RK4 in Python)", "setting": f"dt {dt:g}", "batch": BATCH,
+                 "wall_s": t_pin * BATCH, "error": pin_err, "steps": n_steps, "compile_s": None,
+                 "note": f"{PIN_MEMBERS} members timed ({t_pin * 1e3:.0f} ms each), x {BATCH}; one core"})
+    print(rows[-1], flush=True)
+
+    for r in rows:
+        r["rollouts_per_s"] = r["batch"] / r["wall_s"]
+        r["member_steps_per_s"] = r["batch"] * r["steps"] / r["wall_s"]
+    return {"benchmark": NAME, "environment": environment(), "batch": BATCH, "t_end_s": T_END,
+            "target_error_rad": TARGET, "rk4_error_by_dt": {f"{k:g}": v for k, v in c_err.items()},
+            "rows": rows, "elapsed_s": time.perf_counter() - started}
+
+
+def write(results: dict) -> None:
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f"{NAME}.json").write_text(json.dumps(results, indent=2) + "\n")
+    keys = ["method", "setting", "batch", "wall_s", "rollouts_per_s", "member_steps_per_s", "error", "steps",
+            "compile_s", "note"]
+    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys, restval="")
+        w.writeheader()
+        w.writerows(results["rows"])
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = results["rows"]
+    fig, ax = plt.subplots(figsize=(8, 3.8), constrained_layout=True)
+    ax.barh([f"{r['method']}\n{r['setting']}, error {r['error']:.0e}" for r in rows],
+            [r["rollouts_per_s"] for r in rows], color=["tab:blue" if r["method"].startswith("ours") else "tab:grey"
+                                                       for r in rows])
+    ax.set_xscale("log")
+    ax.set_xlabel(f"Krang rollouts of {results['t_end_s']:g} s per second of wall time (batch {results['batch']})")
+    ax.invert_yaxis()
+    ax.set_title(f"Batched rollouts, float64, {results['environment']['cpu']}", fontsize=9)
+    fig.savefig(RESULTS / f"{NAME}.png", dpi=110)
+    plt.close(fig)
+
+
+def markdown(results: dict) -> str:
+    env = results["environment"]
+    rows = results["rows"]
+    best = {m: max((r for r in rows if r["method"] == m and r["error"] <= results["target_error_rad"]),
+                   key=lambda r: r["rollouts_per_s"], default=None) for m in dict.fromkeys(r["method"] for r in rows)}
+    ours = max((r for m, r in best.items() if r and m.startswith("ours")), key=lambda r: r["rollouts_per_s"],
+               default=None)
+    lines = [f"### Batched rollouts: {results['batch']} Krang parameter sets and initial states "
+             f"({results['t_end_s']:g} s each)", "",
+             f"{env['cpu']}, {env['cpu_count']} cores, load average {env['load_average_1_5_15min'][0]:.1f} (1 min), "
+             f"{env['date']}; benchmark took {results['elapsed_s'] / 60:.1f} min. Error = largest final joint-angle "
+             f"error over the checked members against ours Dopri8 rtol 1e-12.", ""]
+    if ours:
+        parts = [f"{ours['rollouts_per_s'] / r['rollouts_per_s']:.1f}× {m}" for m, r in best.items()
+                 if r and not m.startswith("ours")]
+        lines += [f"**Ours at ≤ {results['target_error_rad']:g} rad ({ours['method']}, {ours['setting']}): "
+                  f"{ours['rollouts_per_s']:.0f} rollouts/s; throughput relative to the others at the same error: "
+                  + ", ".join(parts) + ".**", ""]
+    lines += ["| method | setting | wall time for the batch | rollouts/s | member-steps/s | final error | "
+              "compile | how measured |", "|---|---|---:|---:|---:|---:|---:|---|"]
+    for r in rows:
+        comp = "" if r["compile_s"] is None else f"{r['compile_s']:.1f} s"
+        lines.append(f"| {r['method']} | {r['setting']} | {r['wall_s']:.2f} s | {r['rollouts_per_s']:.0f} | "
+                     f"{r['member_steps_per_s']:.3g} | {r['error']:.1e} rad | {comp} | {r['note']} |")
+    errs = ", ".join(f"dt {k}: {v:.1e}" for k, v in results["rk4_error_by_dt"].items())
+    lines += ["", f"RK4 final error by step (MuJoCo C, same for MJX and the Pinocchio loop): {errs} rad. Every row "
+              "uses one core's worth of XLA/C++ per operation; ours could split the batch over both cores as two host "
+              "devices (`sharded_vmap`, `XLA_FLAGS=--xla_force_host_platform_device_count=2`) and MuJoCo C over "
+              "threads (`mujoco.rollout`), neither done here.", ""]
+    return "\n".join(lines)
+
+
+def main() -> dict:
+    print(f"devices: {jax.devices()}")
+    results = run()
+    write(results)
+    print(markdown(results))
+    return results
+
+
+if __name__ == "__main__":
+    main()
