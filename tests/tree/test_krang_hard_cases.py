@@ -33,11 +33,11 @@ RANK_RTOL = 1e-12
 MASS_COND_MAX = 1e6
 KRANG_RTOL, KRANG_ATOL = 1e-12, 1e-12  # dopri8
 #: Relative drift of the total energy (scale: kinetic + |potential| at t = 0) over 1 s through the pose.
-ENERGY_DRIFT_1S = 1e-9
+ENERGY_DRIFT_1S = 1e-10
 #: Same over 100 s.
-ENERGY_DRIFT_100S = 1e-8
+ENERGY_DRIFT_100S = 1e-9
 #: A wrist spinning at 100 rad/s, 1 s.
-ENERGY_DRIFT_SPIN = 1e-9
+ENERGY_DRIFT_SPIN = 1e-10
 KRANG_MAX_STEPS = 400_000
 
 
@@ -133,7 +133,6 @@ def test_stretched_arm_rollout_keeps_energy(krang, krang_run):
     assert bool(sol.ok) and np.all(np.isfinite(sol.q)) and drift <= ENERGY_DRIFT_1S
 
 
-@pytest.mark.slow
 def test_krang_100_s_horizon_keeps_energy(krang, krang_run):
     # Hanging (base pitched by pi) with every joint displaced by up to 0.5 rad: 100 s of swinging arms and torso.
     q0 = np.random.default_rng(3).uniform(-0.5, 0.5, krang.nq)
