@@ -1,4 +1,4 @@
-"""Hard cases for the tree dynamics, the solvers and the particle mass solve (numerical stability).
+"""Hard cases for the solvers, the particle mass solve and reduced precision (numerical stability).
 
 Each test states its expectation; tolerances are named constants beside the case. Every run must be free of NaN,
 and a case that cannot be handled must fail loudly (an exception or ``ok = False``), never return garbage.
@@ -6,17 +6,15 @@ and a case that cannot be handled must fail loudly (an exception or ``ok = False
 1. Stiff spring-damper (k = 1e7 N/m on 1 kg): the exact solution of the linear ODE (matrix exponential). The
    implicit solver takes few steps; the explicit one is held by its stability interval (computed from its
    Butcher tableau) and needs many; a step budget too small for it is reported, not hidden.
-2. Krang with both arms stretched (singular arm Jacobians): mass matrix SPD, forward dynamics equal to
-   Pinocchio's ABA, the expected rank loss of the Jacobian, finite wrench torques, energy kept through the pose.
-3. A 100 s horizon for Krang (no friction, no input): energy drift.
-4. A fast spin (a wrist joint at 100 rad/s): energy kept.
-5. Near-coplanar / near-collinear primary particles: reproduction error against the conditioning of the
+2. Near-coplanar / near-collinear primary particles: reproduction error against the conditioning of the
    placement, and a :class:`PlacementError` naming the body beyond the threshold.
-6. float32 against float64 (Krang forward dynamics and a 1 s rollout): the error is measured and bounded.
+3. float32 against float64 (Krang forward dynamics and a 1 s rollout): the error is measured and bounded.
+
+Krang at a singular pose, over 100 s and spinning fast: ``tests/tree/test_krang_hard_cases.py``; mechanisms
+(fast spin, 100 s, 64-body chains): ``tests/mechanism/test_mechanism_hard_cases.py``.
 """
 
 import warnings
-import xml.etree.ElementTree as ET
 
 import diffrax
 import jax
@@ -27,17 +25,9 @@ import scipy.linalg
 
 from particlesim import PlacementError, RigidInertia
 from particlesim.particles import PLACEMENT_RTOL, equivalent_particles
-from particlesim.scenes.krang import krang_2018_pitch_urdf, krang_urdf
+from particlesim.scenes.krang import krang_urdf
 from particlesim.simulate import simulate
-from particlesim.tree import (
-    forward_dynamics,
-    kinetic_energy,
-    link_jacobian,
-    load_urdf,
-    mass_matrix,
-    potential_energy,
-    wrench_torques,
-)
+from particlesim.tree import forward_dynamics, load_urdf, mass_matrix
 
 # ---------------------------------------------------------------------------------------------------------------
 # 1. Stiff spring-damper
@@ -156,7 +146,7 @@ def test_stiff_undamped_spring_keeps_energy(slider, solver):
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# 5. Near-coplanar / near-collinear primary particles
+# 2. Near-coplanar / near-collinear primary particles
 # ---------------------------------------------------------------------------------------------------------------
 
 EPS64 = np.finfo(np.float64).eps
@@ -230,7 +220,7 @@ def test_placements_beyond_the_threshold_would_give_garbage():
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# 6. float32 against float64
+# 3. float32 against float64
 # ---------------------------------------------------------------------------------------------------------------
 # ``import particlesim`` turns x64 on; ``jax.enable_x64(False)`` runs a block in float32 (models must be built
 # inside it, so that their parameters are float32). simulate() takes the default float type of the mode.

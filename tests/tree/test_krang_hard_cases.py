@@ -94,8 +94,9 @@ def test_stretched_arm_dynamics_match_pinocchio(krang, krang_exact_urdf):
     q = np.zeros(krang.nq)  # both arms straight
     qd = np.random.default_rng(5).normal(size=krang.nq)
     tau = np.random.default_rng(6).normal(size=krang.nq)
-    # The singularity: each arm's 6 x 6 Jacobian (gripper, world axes) loses rank 3 (axes 1, 3, 5 collinear
-    # along the straight arm, and the arm's reach cannot grow).
+    # The singularity: in each straight arm, joints 1, 3, 5 turn about the arm's own line, which carries the gripper
+    # origin (three equal Jacobian columns, rank 1), and joints 2, 4, 6 about parallel axes (rank 2): the 6 x 6
+    # arm Jacobian (gripper, world axes) has rank 3.
     for side, link in (("L", "lGripper"), ("R", "rGripper")):
         sv = np.linalg.svd(np.asarray(link_jacobian(krang, q, link))[:, _arm(krang, side)], compute_uv=False)
         print(f"\n{link}: arm Jacobian singular values {np.array2string(sv, precision=3)}")
