@@ -174,9 +174,16 @@ def simulate(
     finite = jnp.all(jnp.isfinite(q0)) & jnp.all(jnp.isfinite(qd0))
     q0 = eqx.error_if(q0, ~finite, "simulate: initial state (q0, qd0) is not finite")
 
-    def vector_field(t, y, args):
+    # The parameters reach diffrax through ``args`` (not a closure), so every adjoint, BacksolveAdjoint included,
+    # differentiates them. They travel as their flat list of leaves: diffrax 0.7.2's backsolve fails on ``args``
+    # holding empty tuples.
+    p_leaves, p_def = jax.tree.flatten(params)
+
+    def vector_field(t, y, leaves):
+        p = jax.tree.unflatten(p_def, leaves)
         q, qd = y
-        return qd, dynamics(params, q, qd, tau_of(t, q, qd))
+        tau = jnp.zeros_like(q) if control is None else control(t, q, qd, p)
+        return qd, dynamics(p, q, qd, tau)
 
     pcoeff, icoeff, dcoeff = pid or (_PID_IMPLICIT if name.lower() in IMPLICIT_SOLVERS else _PID_EXPLICIT)
     controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=pcoeff, icoeff=icoeff, dcoeff=dcoeff)
@@ -188,6 +195,7 @@ def simulate(
         t1=t1,
         dt0=dt0,
         y0=(q0, qd0),
+        args=p_leaves,
         saveat=saveat,
         stepsize_controller=controller,
         adjoint=adjoint_,

@@ -11,9 +11,8 @@ Two checks per adjoint:
     computation as "checkpoint", so they agree to rounding; "backsolve" integrates the continuous adjoint equations
     backwards, so it agrees to the solver tolerance only.
 
-``simulate`` closes over ``params`` in its vector field, which ``BacksolveAdjoint`` cannot differentiate
-(``CustomVJPException``); backsolve is therefore checked w.r.t. the initial state, and its parameter gradient is a
-strict expected failure that turns into a test failure once the parameters reach diffrax through ``args``.
+``simulate`` hands the parameters to diffrax through ``args``, so backsolve (which differentiates only the initial
+state, ``args`` and the terms) covers them as well as the initial state.
 """
 
 import diffrax
@@ -191,18 +190,13 @@ def test_backsolve_agrees_with_checkpoint_to_solver_tolerance(model, reference, 
     assert rel > 0.0  # a different algorithm: exact equality would mean it was not used
 
 
-class ClosedOverParameters(Exception):
-    """The known limitation: BacksolveAdjoint cannot differentiate values closed over by the vector field."""
+def test_backsolve_check_grads_wrt_all_inputs(model, fns):
+    """Parameters reach diffrax through ``args``, so backsolve differentiates them too."""
+    check_grads(fns("backsolve"), _args(model), order=1, modes=("rev",), eps=FD_EPS, rtol=CHECK_RTOL,
+                atol=CHECK_ATOL)
 
 
-@pytest.mark.xfail(raises=ClosedOverParameters, strict=True,
-                   reason="simulate closes over params in its vector field; BacksolveAdjoint differentiates only "
-                          "y0, args and terms")
-def test_backsolve_parameter_gradients(model):
-    f = rollout_fn(model, "backsolve")
-    try:
-        jax.grad(lambda v: f(model.inertia, v, jnp.asarray(Q0), jnp.asarray(QD0))[-1])(jnp.asarray(VISCOUS))
-    except Exception as e:
-        if "closed-over value" in str(e):
-            raise ClosedOverParameters(str(e)) from e
-        raise
+def test_backsolve_parameter_gradients_agree_with_checkpoint(model, fns, reference):
+    rel = _rel(_jacobian_rev(fns("backsolve"), _args(model)), reference)
+    print(f"\n  backsolve vs checkpoint (all inputs): max |dJ| / max |J| = {rel:.2e}")
+    assert 0.0 < rel <= BACKSOLVE_RTOL
