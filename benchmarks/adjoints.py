@@ -17,9 +17,7 @@ Adjoints: "checkpoint" (``RecursiveCheckpointAdjoint`` with diffrax's default of
 steps are recomputed in the reverse pass), "checkpoint, every step" (``checkpoints=max_steps``: nothing recomputed,
 memory max_steps x state, small here), "direct" (``DirectAdjoint``), "forward" (``ForwardMode``,
 one tangent per parameter, ``jax.jacfwd``), "backsolve" (``BacksolveAdjoint``, the continuous adjoint equations
-solved backwards with the same solver and tolerances). ``simulate`` closes over the model in its vector field,
-which ``BacksolveAdjoint`` cannot differentiate, so the Krang backsolve row calls ``diffrax.diffeqsolve`` with the
-same vector field, solver and controller, the model passed as ``args``. The mechanism solver projects onto the
+solved backwards with the same solver and tolerances). The mechanism solver projects onto the
 constraints after each step, which backsolve cannot see; ``simulate_mechanism`` refuses it (no quarter-car row).
 
 Accuracy: directional derivatives along 3 random unit directions against central differences. The difference
@@ -56,11 +54,12 @@ FD_STEPS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)
 N_DIRECTIONS = 3
 MAX_STEPS = 4096
 
-#: Adjoint specifications by label (``forward`` and ``backsolve`` are handled apart, see :func:`_scene`).
+#: Adjoint specifications by label (``forward`` is handled apart, see :func:`_scene`).
 ADJOINTS = {
     "checkpoint": "checkpoint",  # RecursiveCheckpointAdjoint, diffrax's default of log(max_steps) checkpoints
     "checkpoint, every step": diffrax.RecursiveCheckpointAdjoint(checkpoints=MAX_STEPS),  # no recomputation
     "direct": "direct",
+    "backsolve": "backsolve",
 }
 KRANG_ADJOINTS = ("checkpoint", "checkpoint, every step", "direct", "forward", "backsolve")
 QC_ADJOINTS = ("forward",)
@@ -96,20 +95,7 @@ def _krang():
                        adjoint=adjoint)
         return loss_of(sol.q, sol.qd)
 
-    def loss_backsolve(theta):
-        # simulate's wiring (Tsit5, PI controller (0.4, 1, 0), same tolerances), with the model in ``args``.
-        def field(t, y, p):
-            q, qd = y
-            return qd, forward_dynamics(p, q, qd, control(t, q, qd, p))
-
-        sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(field), diffrax.Tsit5(), 0.0, KRANG_T1, None, (q0, jnp.zeros(n)), args=scaled(theta),
-            saveat=diffrax.SaveAt(ts=ts), max_steps=MAX_STEPS, adjoint=diffrax.BacksolveAdjoint(),
-            stepsize_controller=diffrax.PIDController(rtol=KRANG_RTOL, atol=KRANG_ATOL, pcoeff=0.4, icoeff=1.0,
-                                                      dcoeff=0.0))
-        return loss_of(*sol.ys)
-
-    return n, loss, loss_backsolve
+    return n, loss
 
 
 # ---------------------------------------------------------------- quarter car
@@ -143,7 +129,7 @@ def _fd_directional(loss_fn, theta, d):
     return vals[i + 1], changes[i], FD_STEPS[i + 1]
 
 
-def _scene(scene, n, loss_of_adjoint, adjoints, extra=None, repeat=5):
+def _scene(scene, n, loss_of_adjoint, adjoints, repeat=5):
     """Rows for one scene: compile and run times of the loss and of each adjoint's gradient, errors against FD."""
     theta = jnp.ones(n)
     t_c, fwd = timed(lambda: jax.jit(lambda th: loss_of_adjoint(th, "checkpoint")).lower(theta).compile())
@@ -161,8 +147,6 @@ def _scene(scene, n, loss_of_adjoint, adjoints, extra=None, repeat=5):
     for name in adjoints:
         if name == "forward":
             gfun = jax.jacfwd(lambda th: loss_of_adjoint(th, "forward"))
-        elif name == "backsolve":
-            gfun = jax.grad(extra)
         else:
             gfun = jax.grad(lambda th, a=ADJOINTS[name]: loss_of_adjoint(th, a))
         t_cg, g = timed(lambda: jax.jit(gfun).lower(theta).compile())
@@ -190,8 +174,8 @@ def _scene(scene, n, loss_of_adjoint, adjoints, extra=None, repeat=5):
 
 def run() -> dict:
     start = time.perf_counter()
-    n, krang_loss, krang_backsolve = _krang()
-    rows = _scene("Krang 1 s", n, krang_loss, KRANG_ADJOINTS, krang_backsolve)
+    n, krang_loss = _krang()
+    rows = _scene("Krang 1 s", n, krang_loss, KRANG_ADJOINTS)
     nq, qc_loss = _quarter_car()
     rows += _scene("quarter car 0.5 s", nq, qc_loss, QC_ADJOINTS, repeat=3)
     return {
