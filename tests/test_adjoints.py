@@ -66,7 +66,7 @@ SAME_DISCRETE_RTOL = 1e-11  # direct, forward: the same discrete derivative; dif
 # and central differences extrapolated in the step side with them (1e-8, the step-size freezing of diffrax's
 # controller) and not with it. It is a gradient to the accuracy of check_grads, hence the looser bound.
 DIRECT_REV_RTOL = 1e-5
-BACKSOLVE_RTOL = 1e-9  # continuous adjoint solved at rtol 1e-10, ten times that (measured 1.8e-12)
+BACKSOLVE_RTOL = 1e-9  # continuous adjoint solved at rtol 1e-10, ten times that (measured 9.9e-11)
 
 Q0 = np.array([0.4, -0.3, 0.2])
 QD0 = np.array([0.2, 0.5, -0.4])
@@ -160,34 +160,6 @@ def test_discrete_adjoints_equal_checkpoint(model, fns, reference, adjoint, mode
     rel = _rel(jac, reference)
     print(f"\n  {adjoint} ({mode}) vs checkpoint: max |dJ| / max |J| = {rel:.2e}")
     assert rel <= bound
-
-
-@pytest.fixture(scope="module")
-def backsolve_state_fn(model):
-    """Backsolve rollout as a function of the initial state only (the parameters are constants)."""
-    m = model.with_params(viscous=jnp.asarray(VISCOUS))
-
-    def f(q0, qd0):
-        sol = simulate(lambda p, q, qd, tau: forward_dynamics(p, q, qd, tau), m, q0, qd0, 0.0, T1, control=torque,
-                       solver="tsit5", rtol=RTOL, atol=ATOL, saveat_ts=TS, max_steps=MAX_STEPS, adjoint="backsolve")
-        loss = jnp.sum(sol.q**2) + 0.1 * jnp.sum(sol.qd**2)
-        return jnp.concatenate([sol.q[-1], sol.qd[-1], loss[None]])
-
-    return jax.jit(f)
-
-
-def test_backsolve_check_grads_wrt_initial_state(model, backsolve_state_fn):
-    args = _args(model)[2:]
-    check_grads(backsolve_state_fn, args, order=1, modes=("rev",), eps=FD_EPS, rtol=CHECK_RTOL, atol=CHECK_ATOL)
-
-
-def test_backsolve_agrees_with_checkpoint_to_solver_tolerance(model, reference, backsolve_state_fn):
-    jac = _jacobian_rev(backsolve_state_fn, _args(model)[2:])
-    ref = reference[:, -6:]  # columns of q0, qd0
-    rel = _rel(jac, ref)
-    print(f"\n  backsolve vs checkpoint (w.r.t. q0, qd0): max |dJ| / max |J| = {rel:.2e}")
-    assert rel <= BACKSOLVE_RTOL
-    assert rel > 0.0  # a different algorithm: exact equality would mean it was not used
 
 
 def test_backsolve_check_grads_wrt_all_inputs(model, fns):
