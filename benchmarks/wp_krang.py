@@ -181,6 +181,12 @@ def run() -> dict:
         "interpreter overhead a C callback would not pay, and it is included in MuJoCo C's rows.",
         "Ours runs one jitted call per 2 s rollout (dispatch included in the wall time); compile times are listed "
         "separately and are not in the ratios.",
+        "With joint damping as the only velocity-dependent force, MuJoCo's Euler (which already treats damping "
+        "implicitly) and implicitfast make the same update: their rows coincide. Both are first order and far from "
+        "the target at any step tried.",
+        "The implicit Kvaerno solvers are expensive on this non-stiff scene (per step a few hundred times an "
+        "explicit step; see the steps and wall-time columns), hence their short sweeps; they are for stiff friction "
+        "(README, Simulation), not for this case.",
     ]
     res = _wp.finish(NAME, f"Krang, fixed wheel, 18 joints, gravity + arm torques, viscous friction {FV:g} N m s/rad", T_END, TARGET, "rad",
                       "max |joint angle − reference| over the 18 joints",
