@@ -7,8 +7,7 @@
   evaluated from the state at every RK4 stage (wheel-centre height and velocity from the kinematics and the site
   Jacobian, ``qfrc_applied = J_z^T F``) before the velocity and acceleration stages. The law is then exact per
   stage, as the MuJoCo C twin's ``mjcb_passive`` (a force held over a step would be first order, MUJOCO-TWINS.md).
-  The RK4 tableau and position integration (quaternions integrated by their body-frame angular velocity) follow
-  MuJoCo's ``mj_RungeKutta``.
+  The RK4 loop is :func:`particlesim.io.mjx_rk4.rk4_rollout` (MuJoCo's ``mj_RungeKutta`` tableau).
 * :func:`forced_rk4_rollout` is the same RK4 loop around ``mjx.forward`` for any model driven by a time-dependent
   generalised force ``force(t)`` (e.g. Krang's arm torques), applied in ``qfrc_applied`` at every stage at the
   stage time (as the MuJoCo C twin's ``mjcb_passive`` reading ``d.time``).
@@ -25,32 +24,9 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-__all__ = ["chain_rollout", "quarter_car_rollout", "forced_rk4_rollout", "integrate_pos"]
+from particlesim.io.mjx_rk4 import rk4_rollout
 
-_RK4 = np.array([[0.0, 1 / 6], [0.5, 1 / 3], [0.5, 1 / 3], [1.0, 1 / 6]])  # (stage offset a_i, weight b_i)
-
-
-def integrate_pos(m: mujoco.MjModel, qpos, qvel, dt):
-    """``qpos`` advanced by ``qvel`` over ``dt`` (MuJoCo's ``mj_integratePos`` for slide, hinge and ball joints)."""
-    out = []
-    for j in range(m.njnt):
-        a, v, kind = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j]), int(m.jnt_type[j])
-        if kind in (int(mujoco.mjtJoint.mjJNT_SLIDE), int(mujoco.mjtJoint.mjJNT_HINGE)):
-            out.append(qpos[a:a + 1] + dt * qvel[v:v + 1])
-        elif kind == int(mujoco.mjtJoint.mjJNT_BALL):
-            q, w = qpos[a:a + 4], qvel[v:v + 3]
-            nw = jnp.sqrt(w @ w)
-            axis = w / jnp.where(nw > 0, nw, 1.0)
-            half = 0.5 * nw * dt
-            w0, x0, y0, z0 = q[0], q[1], q[2], q[3]
-            w1, (x1, y1, z1) = jnp.cos(half), jnp.sin(half) * axis
-            r = jnp.stack([w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1, w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
-                           w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1, w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1])
-            out.append(r / jnp.sqrt(r @ r))
-        else:
-            raise NotImplementedError(f"joint {j}: type {kind} (only slide, hinge and ball are used here)")
-    return jnp.concatenate(out)
-
+__all__ = ["chain_rollout", "quarter_car_rollout", "forced_rk4_rollout"]
 
 def _start(m: mujoco.MjModel, mx):
     """MJX data at the model's reference pose after one jitted forward (x64 field types settle, see the brief)."""
@@ -99,37 +75,21 @@ def quarter_car_rollout(m: mujoco.MjModel, n_save: int, *, ground: float, tyre: 
         d = mjx.fwd_acceleration(mx, d)
         return mjx.solve(mx, d)
 
-    def step(mx, d):
-        dt = mx.opt.timestep
-        q0, v0 = d.qpos, d.qvel
-
-        def stage(c, ab):
-            kv, ka, sv, sa = c
-            ds = forward(mx, d.replace(qpos=integrate_pos(m, q0, kv, ab[0] * dt), qvel=v0 + ab[0] * dt * ka))
-            return (ds.qvel, ds.qacc, sv + ab[1] * ds.qvel, sa + ab[1] * ds.qacc), None
-
-        z = jnp.zeros_like(v0)
-        (_, _, vel, acc), _ = jax.lax.scan(stage, (z, z, z, z), jnp.asarray(_RK4))
-        return d.replace(qpos=integrate_pos(m, q0, vel, dt), qvel=v0 + dt * acc, time=d.time + dt)
-
     def observe(mx, d):
         k = mjx.kinematics(mx, d)
         p1 = k.xpos[b1] + k.xmat[b1] @ anchor1
         p2 = k.xpos[b2] + k.xmat[b2] @ anchor2
         return jnp.stack([k.xpos[cb, 2], k.xpos[wb, 2], jnp.linalg.norm(p1 - p2)])
 
-    def fn(mx, d, per):
-        def outer(d, _):
-            d = jax.lax.fori_loop(0, per, lambda i, d: step(mx, d), d)
-            return d, observe(mx, d)
+    roll = rk4_rollout(m, n_save, forward, observe)
 
-        with jax.numpy_rank_promotion("allow"):
-            rest = jax.lax.scan(outer, d, None, length=n_save - 1)[1]
-            out = jnp.concatenate([observe(mx, d)[None], rest])
+    @jax.jit
+    def fn(mx, d, per):
+        out = roll(mx, d, per)
         return out[:, 0], out[:, 1], out[:, 2]
 
     mx = mjx.put_model(m)
-    return jax.jit(fn), mx, _start(m, mx)
+    return fn, mx, _start(m, mx)
 
 
 def forced_rk4_rollout(m: mujoco.MjModel, n_save: int, force, *, observe=lambda mx, d: d.qpos):
@@ -138,29 +98,8 @@ def forced_rk4_rollout(m: mujoco.MjModel, n_save: int, force, *, observe=lambda 
     ``observe(mx, d)`` every ``per`` steps (the first at ``d0``), stacked ``(n_save, ...)``. Set the start state
     with ``d0.replace(qpos=..., qvel=...)``; ``fn`` is jitted, ``per`` and the model's numbers are traced."""
 
-    def step(mx, d):
-        dt = mx.opt.timestep
-        q0, v0, t0 = d.qpos, d.qvel, d.time
-
-        def stage(c, ab):
-            kv, ka, sv, sa = c
-            t = t0 + ab[0] * dt
-            ds = mjx.forward(mx, d.replace(qpos=integrate_pos(m, q0, kv, ab[0] * dt), qvel=v0 + ab[0] * dt * ka,
-                                           time=t, qfrc_applied=force(t)))
-            return (ds.qvel, ds.qacc, sv + ab[1] * ds.qvel, sa + ab[1] * ds.qacc), None
-
-        z = jnp.zeros_like(v0)
-        (_, _, vel, acc), _ = jax.lax.scan(stage, (z, z, z, z), jnp.asarray(_RK4))
-        return d.replace(qpos=integrate_pos(m, q0, vel, dt), qvel=v0 + dt * acc, time=t0 + dt)
-
-    def fn(mx, d, per):
-        def outer(d, _):
-            d = jax.lax.fori_loop(0, per, lambda i, d: step(mx, d), d)
-            return d, observe(mx, d)
-
-        with jax.numpy_rank_promotion("allow"):
-            rest = jax.lax.scan(outer, d, None, length=n_save - 1)[1]
-            return jnp.concatenate([observe(mx, d)[None], rest])
+    def forward(mx, d):
+        return mjx.forward(mx, d.replace(qfrc_applied=force(d.time)))
 
     mx = mjx.put_model(m)
-    return jax.jit(fn), mx, _start(m, mx)
+    return rk4_rollout(m, n_save, forward, observe), mx, _start(m, mx)

@@ -30,7 +30,6 @@ from . import nikravesh as nk
 __all__ = ["twin_xml", "twin_rollout", "mjx_rollout", "solref_tc"]
 
 _SOLIMP = "0.9999 0.9999 0.001 0.5 2"
-_RK4 = np.array([[0.0, 1 / 6], [0.5, 1 / 3], [0.5, 1 / 3], [1.0, 1 / 6]])  # (stage offset a_i, weight b_i)
 
 
 def solref_tc(timestep: float) -> float:
@@ -156,6 +155,8 @@ def mjx_rollout(m: mujoco.MjModel, n_save: int):
     import jax.numpy as jnp
     from mujoco import mjx
 
+    from ..io.mjx_rk4 import rk4_rollout, rk4_step
+
     wb = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "wheel")
     b1, b2 = int(m.eq_obj1id[0]), int(m.eq_obj2id[0])
     anchor1, anchor2 = np.array(m.eq_data[0, 0:3]), np.array(m.eq_data[0, 3:6])
@@ -174,33 +175,17 @@ def mjx_rollout(m: mujoco.MjModel, n_save: int):
         d = mjx.fwd_acceleration(mx, d)
         return mjx.solve(mx, d)
 
-    def step(mx, d):
-        dt = mx.opt.timestep
-        q0, v0 = d.qpos, d.qvel
-
-        def stage(c, ab):
-            kv, ka, sv, sa = c
-            ds = forward(mx, d.replace(qpos=q0 + ab[0] * dt * kv, qvel=v0 + ab[0] * dt * ka))
-            return (ds.qvel, ds.qacc, sv + ab[1] * ds.qvel, sa + ab[1] * ds.qacc), None
-
-        z = jnp.zeros_like(v0)
-        (_, _, vel, acc), _ = jax.lax.scan(stage, (z, z, z, z), jnp.asarray(_RK4))
-        return d.replace(qpos=q0 + dt * vel, qvel=v0 + dt * acc, time=d.time + dt)
-
     def observe(mx, d):
         k = mjx.kinematics(mx, d)
         p1 = k.xpos[b1] + k.xmat[b1] @ anchor1
         p2 = k.xpos[b2] + k.xmat[b2] @ anchor2
         return jnp.stack([k.xpos[wb, 1], jnp.linalg.norm(p1 - p2)])
 
-    def fn(mx, d, per):
-        def outer(d, _):
-            d = jax.lax.fori_loop(0, per, lambda i, d: step(mx, d), d)
-            return d, observe(mx, d)
+    roll = rk4_rollout(m, n_save, forward, observe)
 
-        with jax.numpy_rank_promotion("allow"):
-            rest = jax.lax.scan(outer, d, None, length=n_save - 1)[1]
-            out = jnp.concatenate([observe(mx, d)[None], rest])
+    @jax.jit
+    def fn(mx, d, per):
+        out = roll(mx, d, per)
         return out[:, 0], out[:, 1]
 
     mx = mjx.put_model(m)
@@ -208,6 +193,6 @@ def mjx_rollout(m: mujoco.MjModel, n_save: int):
     with jax.numpy_rank_promotion("allow"):
         # With x64 some integer fields change type in the first forward; the scan carry needs the types after a
         # step. They are read by abstract evaluation (no compile), instead of running a jitted mjx.forward first.
-        after = jax.eval_shape(step, mx, d0)
+        after = jax.eval_shape(rk4_step(m, forward), mx, d0)
     d0 = jax.tree.map(lambda x, s: jnp.asarray(x, dtype=s.dtype), d0, after)
     return jax.jit(fn), mx, d0
