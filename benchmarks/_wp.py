@@ -32,7 +32,7 @@ import numpy as np
 
 from ._common import RESULTS, environment, timed
 
-__all__ = ["Errors", "compile_ours", "headline_notes", "sweep_ours", "sweep_fixed", "finish", "write", "markdown", "fmt_time"]
+__all__ = ["Errors", "compile_ours", "headline", "headline_notes", "sweep_ours", "sweep_fixed", "finish", "write", "markdown", "fmt_time"]
 
 
 class Errors:
@@ -118,19 +118,13 @@ def sweep_fixed(method: str, dts: Iterable[float], run: Callable[[float], object
     return rows
 
 
-def _best(rows: list[dict], target: float) -> dict:
-    out = {}
+def headline(rows: list[dict], target: float, key: str = "error") -> dict:
+    """Per method, the cheapest run whose ``key`` error ("error": final state, "max_error": over the run) reaches
+    ``target``; our best of those, and the ratios of MuJoCo C's and MJX's best to it (> 1: ours faster)."""
+    head = {}
     for method in dict.fromkeys(r["method"] for r in rows):
-        ok = [r for r in rows if r["method"] == method and r["error"] <= target]
-        out[method] = min(ok, key=lambda r: r["wall_s"]) if ok else None
-    return out
-
-
-def finish(name: str, scene: str, t_end: float, target: float, unit: str, what: str, reference: dict,
-           rows: list[dict], started: float, notes: Sequence[str] = ()) -> dict:
-    """The results record: rows, headline (cheapest run per method reaching ``target``) and the ratios of our
-    best to MuJoCo C's and MJX's best at that error (> 1: ours faster)."""
-    head = _best(rows, target)
+        ok = [r for r in rows if r["method"] == method and r[key] <= target]
+        head[method] = min(ok, key=lambda r: r["wall_s"]) if ok else None
     ours = [r for m, r in head.items() if m.startswith("ours") and r]
     best = min(ours, key=lambda r: r["wall_s"]) if ours else None
     ratios = {}
@@ -138,9 +132,17 @@ def finish(name: str, scene: str, t_end: float, target: float, unit: str, what: 
         cand = [r for m, r in head.items() if m.startswith(peer) and r]
         p = min(cand, key=lambda r: r["wall_s"]) if cand else None
         ratios[peer] = (p["wall_s"] / best["wall_s"]) if (p and best) else None
+    return {"headline": head, "ours_best": best, "speedup_vs": ratios}
+
+
+def finish(name: str, scene: str, t_end: float, target: float, unit: str, what: str, reference: dict,
+           rows: list[dict], started: float, notes: Sequence[str] = ()) -> dict:
+    """The results record: rows, headline (cheapest run per method reaching ``target``) and the ratios of our
+    best to MuJoCo C's and MJX's best at that error (> 1: ours faster)."""
+    h = headline(rows, target)
     return {"benchmark": name, "scene": scene, "environment": environment(), "t_end_s": t_end,
             "target_error": target, "unit": unit, "error_what": what, "reference": reference, "rows": rows,
-            "headline": head, "ours_best": best, "speedup_vs": ratios, "notes": list(notes),
+            **h, "notes": list(notes),
             "elapsed_s": time.perf_counter() - started}
 
 

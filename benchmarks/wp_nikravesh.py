@@ -112,23 +112,6 @@ def _callback_cost() -> dict:
     return out
 
 
-def _headline_max(rows: list[dict], target: float) -> dict:
-    """Per method, the cheapest run whose largest error over the run reaches ``target``; ratios as in
-    :func:`_wp.finish` (> 1: ours faster)."""
-    head = {}
-    for method in dict.fromkeys(r["method"] for r in rows):
-        ok = [r for r in rows if r["method"] == method and r["max_error"] <= target]
-        head[method] = min(ok, key=lambda r: r["wall_s"]) if ok else None
-    ours = [r for m, r in head.items() if m.startswith("ours") and r]
-    best = min(ours, key=lambda r: r["wall_s"]) if ours else None
-    ratios = {}
-    for peer in ("MuJoCo C", "MJX"):
-        cand = [r for m, r in head.items() if m.startswith(peer) and r]
-        p = min(cand, key=lambda r: r["wall_s"]) if cand else None
-        ratios[peer] = (p["wall_s"] / best["wall_s"]) if (p and best) else None
-    return {"headline": head, "ours_best": best, "speedup_vs": ratios}
-
-
 def run() -> dict:
     started = time.perf_counter()
     mech, x0 = nk.aa_mechanism()
@@ -171,7 +154,7 @@ def run() -> dict:
                       "steps": int(ref_steps), "compile_s": ref_c, "distance_to_AA_results_m": file_dist},
                      rows, started, notes)
     res["notes"] += _wp.headline_notes(res)
-    res["trajectory_headline"] = _headline_max(rows, TARGET)
+    res["trajectory_headline"] = _wp.headline(rows, TARGET, key="max_error")
     res["notes"] += ["On the largest error over the run: " + n[0].lower() + n[1:]
                      for n in _wp.headline_notes({**res, **res["trajectory_headline"]})]
     res["callback_cost"] = cost
