@@ -108,6 +108,25 @@ def _check_state(params: Any, q0: Array, qd0: Array) -> None:
                 raise ValueError(f"{name} is not finite at coordinates {bad.tolist()}")
 
 
+def _finite_params(params: Any, q0: Array) -> Array:
+    """Refuse non-finite floating leaves of ``params`` (e.g. set with ``with_params``/``eqx.tree_at``, which do not
+    check): eagerly, naming the leaf and entry, when the values are concrete; else by a run-time error."""
+    flat = [(jax.tree_util.keystr(path), leaf) for path, leaf in jax.tree_util.tree_flatten_with_path(params)[0]
+            if eqx.is_inexact_array(leaf)]
+    if not flat:
+        return q0
+    if not any(isinstance(leaf, jax.core.Tracer) for _, leaf in flat):
+        for name, leaf in flat:
+            a = np.asarray(leaf)
+            if not np.all(np.isfinite(a)):
+                where = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0]) if a.ndim else ()
+                raise ModelError(f"simulate: parameter {name or 'params'} is not finite (NaN or inf) at entry {where}")
+        return q0
+    bad = jnp.stack([~jnp.all(jnp.isfinite(leaf)) for _, leaf in flat])
+    msgs = [f"simulate: parameter {name or 'params'} is not finite (NaN or inf)" for name, _ in flat]
+    return eqx.branched_error_if(q0, jnp.any(bad), jnp.argmax(bad), msgs)
+
+
 def simulate(
     dynamics: Callable[[Any, Array, Array, Array], Array],
     params: Any,
@@ -152,7 +171,8 @@ def simulate(
 
     Raises:
         ValueError: unknown solver or adjoint name; non-finite concrete initial state.
-        ModelError: q0/qd0 shapes disagree with each other, with ``params.nq`` or with what ``dynamics`` returns.
+        ModelError: q0/qd0 shapes disagree with each other, with ``params.nq`` or with what ``dynamics`` returns;
+            a floating parameter is NaN or inf (at run time when traced).
     """
     q0 = jnp.asarray(q0, dtype=float)
     qd0 = jnp.asarray(qd0, dtype=float)
@@ -173,6 +193,7 @@ def simulate(
     # Runtime guard for traced initial states (under jit/vmap the eager check above cannot see values).
     finite = jnp.all(jnp.isfinite(q0)) & jnp.all(jnp.isfinite(qd0))
     q0 = eqx.error_if(q0, ~finite, "simulate: initial state (q0, qd0) is not finite")
+    q0 = _finite_params(params, q0)
 
     # The parameters reach diffrax through ``args`` (not a closure), so every adjoint, BacksolveAdjoint included,
     # differentiates them. They travel as their flat list of leaves: diffrax 0.7.2's backsolve fails on ``args``

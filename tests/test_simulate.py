@@ -112,6 +112,20 @@ def test_nan_initial_state_under_jit_raises_at_run_time():
         jax.block_until_ready(f(jnp.array([jnp.nan, 0.0])))
 
 
+def test_non_finite_parameters_are_refused(two_link):
+    """Parameters set with ``with_params`` (unchecked) reach simulate: NaN/inf is an error naming the leaf, eagerly
+    and under jit, never a NaN trajectory."""
+    bad = two_link.with_params(inertia=two_link.inertia.at[1, 0].set(jnp.nan))
+    with pytest.raises(ModelError, match=r"parameter \.inertia is not finite .* at entry \(1, 0\)"):
+        simulate(tree_dynamics, bad, jnp.zeros(2), jnp.zeros(2), 0.0, 0.1)
+    with pytest.raises(ModelError, match=r"parameter \['w'\] is not finite"):
+        simulate(oscillator, {"w": jnp.array(jnp.inf)}, Q0, QD0, 0.0, 1.0)
+    f = jax.jit(lambda w: simulate(oscillator, {"w": w}, Q0, QD0, 0.0, 1.0).q)
+    assert np.all(np.isfinite(np.asarray(f(jnp.array(2.0)))))
+    with pytest.raises(Exception, match=r"parameter \['w'\] is not finite"):
+        jax.block_until_ready(f(jnp.array(jnp.nan)))
+
+
 def test_step_budget_exhausted_raises_or_reports():
     with pytest.raises(Exception, match="maximum number of solver steps"):
         simulate(oscillator, OSC, Q0, QD0, 0.0, 100.0, max_steps=8)
