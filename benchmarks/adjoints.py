@@ -35,7 +35,6 @@ import time
 
 import particlesim  # noqa: F401  (float64)
 import diffrax
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -106,12 +105,13 @@ def _quarter_car():
     mech, x0 = quarter_car()
     x0 = jnp.asarray(x0)
     k = mech.point_index("centre")
-    nominal = (mech.springs[0].stiffness, mech.springs[0].damping, mech.tyres[0].stiffness)
+    nominal = (mech.spring_stiffness[0], mech.spring_damping[0], mech.tyre_stiffness[0])
     ts = jnp.linspace(0.0, QC_T1, 26)
 
     def loss(theta, adjoint):
-        m = eqx.tree_at(lambda mm: (mm.springs[0].stiffness, mm.springs[0].damping, mm.tyres[0].stiffness), mech,
-                        tuple(theta[i] * nominal[i] for i in range(3)))
+        m = mech.with_params(spring={"suspension": {"stiffness": theta[0] * nominal[0],
+                                                    "damping": theta[1] * nominal[1]}},
+                             tyre={"tyre": {"stiffness": theta[2] * nominal[2]}})
         sol = simulate_mechanism(m, x0, jnp.zeros_like(x0), 0.0, QC_T1, solver="dopri5", rtol=QC_RTOL,
                                  atol=QC_ATOL, saveat_ts=ts, max_steps=MAX_STEPS, adjoint=adjoint)
         z = jax.vmap(lambda x: m.point_positions(m.all_positions(x))[k, 2])(sol.q)

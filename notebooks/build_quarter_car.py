@@ -52,9 +52,9 @@ CELLS = [
     new_code_cell(
         "mech, x0 = qc.quarter_car()\n"
         "print('free particles:', mech.n_free, ' constraints:', residuals(mech, x0, 0 * x0)[0].shape[0])\n"
-        "for b in mech.bodies:\n"
-        "    print(f'{b.name:10s} {b.kind:8s}', [mech.particle_names[i] for i in b.primaries])\n"
-        "print([g[2] for g in mech.generic])"
+        "for b, name in enumerate(mech.topo.body_names):\n"
+        "    print(f'{name:10s} {mech.topo.body_kind(b):8s}', [mech.particle_names[i] for i in mech.topo.body_particles[b]])\n"
+        "print([lab for lab in mech.topo.row_labels() if not lab.startswith('body')])"
     ),
     new_markdown_cell("## Free response from rest\n\nReleased in the assembly configuration with the spring and tyre "
                       "unloaded, it falls and settles. The constraints are projected after every step, so they "
@@ -78,7 +78,7 @@ CELLS = [
     new_code_cell(
         "import equinox as eqx\n"
         "for k_spring in (3e4, 5.11e4, 8e4):\n"
-        "    m2 = eqx.tree_at(lambda m: m.springs[0].stiffness, mech, jnp.asarray(k_spring))\n"
+        "    m2 = mech.with_params(spring={'suspension': {'stiffness': k_spring}})\n"
         "    s2 = run(m2, jnp.asarray(x0))\n"
         "    z2 = np.asarray(jax.vmap(lambda x: m2.point_positions(m2.all_positions(x))[k, 2])(s2.q))\n"
         "    plt.plot(ts, z2 - z2[0], label=f'k = {k_spring:.3g} N/m')\n"

@@ -48,6 +48,7 @@ __all__ = [
     "PAIRS",
     "N_PRIMARY",
     "solve_particle_masses",
+    "primary_mass_matrix",
     "equivalent_particles",
     "particle_positions",
     "pose_from_primaries",
@@ -165,6 +166,22 @@ def solve_particle_masses(mass: ArrayLike, com: ArrayLike, inertia_com: ArrayLik
     prim = 2.0 * jnp.diagonal(big_l) - mu
     sec = jnp.stack([4.0 * big_l[i, j] for i, j in PAIRS[kind]])
     return jnp.concatenate([prim, sec])
+
+
+def primary_mass_matrix(mass: ArrayLike, com: ArrayLike, inertia_com: ArrayLike,
+                        primaries: Float[ArrayLike, "k 3"]) -> Float[Array, "k k"]:
+    """The body's scalar mass matrix in its primary particles, ``L = int lambda lambda^T dm`` (``k x k``).
+
+    With the secondaries eliminated (Attia eqs. (23)–(27)) the body's kinetic energy is ``1/2 sum_ij L_ij
+    v_i . v_j`` over its primaries: ``L = B^T diag(m) B`` for the particle masses ``m`` of
+    :func:`solve_particle_masses` and ``B`` the midpoint incidence, computed here directly. ``L`` is a Gram matrix
+    of the mass distribution, so it is positive semi-definite whatever the signs of the particle masses.
+    """
+    mass = jnp.asarray(mass, dtype=float)
+    com = jnp.asarray(com, dtype=float)
+    primaries = jnp.asarray(primaries, dtype=float)
+    s_origin = second_moment_from_inertia(inertia_about_point(inertia_com, mass, com, jnp.zeros(3)))
+    return _barycentric_moments(mass, com, s_origin, primaries)[1]
 
 
 def particle_positions(primaries: Float[ArrayLike, "k 3"]) -> Float[Array, "n 3"]:

@@ -4,7 +4,8 @@ The trace is the free response of :func:`particlesim.scenes.quarter_car.quarter_
 configuration (assumption A6: spring and tyre unloaded), which settles under gravity: the static sag fixes the
 series stiffness ``(1/k_s + 1/k_t)^-1`` (through the suspension's motion ratio), the sprung-mass mode (~1.5 Hz)
 fixes ``k_s`` and ``c_s`` and the wheel-hop mode (~16 Hz, strongly damped by ``c_s``) separates ``k_t``. The
-model parameters are replaced in the built mechanism with ``eqx.tree_at`` (one compile serves every value).
+model parameters are replaced in the built mechanism by name (``Mechanism.with_params``; one compile serves every
+value).
 
 Fit: Gauss–Newton in ``log p`` on ``z_model(t_k; p) - z_meas(t_k)`` with a backtracking step. The Jacobian is
 taken by forward differences of the same compiled rollout, vmapped over the ``P + 1`` parameter sets (a forward
@@ -17,7 +18,6 @@ from __future__ import annotations
 
 from typing import NamedTuple, Optional
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -29,11 +29,12 @@ PARAMETERS = ("spring_stiffness", "spring_damping", "tyre_stiffness", "tyre_damp
 
 
 def _with(mech, p):
-    leaves = (lambda m: m.springs[0].stiffness, lambda m: m.springs[0].damping, lambda m: m.tyres[0].stiffness,
-              lambda m: m.tyres[0].damping)
-    for get, v in zip(leaves, p):
-        mech = eqx.tree_at(get, mech, jnp.asarray(v, dtype=float))
-    return mech
+    names = (("spring", "suspension", "stiffness"), ("spring", "suspension", "damping"),
+             ("tyre", "tyre", "stiffness"), ("tyre", "tyre", "damping"))
+    values: dict = {"spring": {"suspension": {}}, "tyre": {"tyre": {}}}
+    for (group, name, field), v in zip(names, p):
+        values[group][name][field] = v
+    return mech.with_params(**values)
 
 
 def chassis_trace_fn(ts, *, mech=None, x0=None, rtol: float = 1e-9, atol: float = 1e-11, solver: str = "dopri5"):

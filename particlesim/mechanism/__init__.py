@@ -2,11 +2,11 @@
 particles, loops closed by cut-joint constraints, force elements, and their simulation."""
 
 from .builder import MechanismBuilder
-from .chain import ChainPlan, chain_accelerations, chain_plan
+from .chain import ChainPlan, chain_accelerations, chain_mass_blocks, chain_plan
 from .constraints import constraint_gamma, constraint_jacobian, constraint_labels, constraints, velocity_constraints
-from .dynamics import mass_properties, accelerations, accelerations_and_multipliers, kinetic_energy, residuals, total_energy
+from .dynamics import Prepared, prepare, mass_properties, accelerations, accelerations_and_multipliers, kinetic_energy, residuals, total_energy
 from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
-from .integrate import ProjectedSolver, project, simulate_mechanism
+from .integrate import project, simulate_mechanism
 from .model import Mechanism
 
 __all__ = [
@@ -14,6 +14,9 @@ __all__ = [
     "ChainPlan",
     "chain_plan",
     "chain_accelerations",
+    "chain_mass_blocks",
+    "Prepared",
+    "prepare",
     "MechanismBuilder",
     "constraints",
     "constraint_jacobian",
@@ -31,6 +34,5 @@ __all__ = [
     "spring_lengths",
     "body_angular_velocity",
     "project",
-    "ProjectedSolver",
     "simulate_mechanism",
 ]

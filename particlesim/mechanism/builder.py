@@ -2,8 +2,8 @@
 
 Joints come from shared particles: two bodies listing the same particle are joined by a spherical joint there;
 two shared particles make a revolute joint about their line; a body listing ground particles turns about a fixed
-point (one) or a fixed axis (two). Prismatic joints and cut joints are explicit. Positions are global at assembly;
-each body's inertia is given in its own frame, placed by ``pose``.
+point (one) or a fixed axis (two). Links, cut joints, points kept on a line and prismatic joints are explicit.
+Positions are global at assembly; each body's inertia is given in its own frame, placed by ``pose``.
 
 Example (a pendulum)::
 
@@ -12,21 +12,24 @@ Example (a pendulum)::
     mb.particle("tip", (1, 0, 0))
     mb.body("rod", RigidInertia(1.0, (0.5, 0, 0), diag(0, 1/12, 1/12), degenerate_ok=True), ["O", "tip"])
     mech, x0 = mb.build()
+
+The build works in NumPy on the assembly configuration (its cost grows linearly with the mechanism, apart from
+one rank check of the constraint Jacobian) and returns a :class:`~.model.Mechanism` whose rows are typed
+(:class:`~.model.DotRows`, :class:`~.model.LinearRows`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, Optional, Sequence
 
 import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ModelError
-from ..inertia import RigidInertia
+from ..inertia import RigidInertia, check_inertia
 from ..particles import N_PRIMARY, check_placement, equivalent_particles
-from ..spatial import frame_from_points
-from .constraints import constraint_jacobian, constraint_labels, constraints
-from .model import AppliedSpec, BodySpec, Mechanism, PointSpec, SpringSpec, TyreSpec
+from .model import AppliedSpec, DotRows, LinearRows, Mechanism, Topology
 
 __all__ = ["MechanismBuilder", "ASSEMBLY_RTOL", "RANK_RTOL"]
 
@@ -34,6 +37,11 @@ __all__ = ["MechanismBuilder", "ASSEMBLY_RTOL", "RANK_RTOL"]
 ASSEMBLY_RTOL = 1e-9
 #: Singular values of the constraint Jacobian below this fraction of the largest count as rank loss.
 RANK_RTOL = 1e-9
+_AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
 
 
 class MechanismBuilder:
@@ -41,6 +49,8 @@ class MechanismBuilder:
 
     def __init__(self, gravity: Sequence[float] = (0.0, 0.0, -9.81)):
         self.gravity = np.asarray(gravity, dtype=float)
+        if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):
+            raise ModelError(f"gravity must be 3 finite numbers, got {np.asarray(gravity).tolist()}")
         self._particles: dict[str, tuple[np.ndarray, bool]] = {}
         self._bodies: list[tuple[str, RigidInertia, tuple[str, ...], tuple, str]] = []
         self._joints: list[tuple[str, tuple[str, ...], str, Optional[float]]] = []  # kind, names, label, length
@@ -109,7 +119,8 @@ class MechanismBuilder:
 
     # ---- force elements ----
     def point(self, name: str, body: Optional[str], xyz) -> str:
-        """A named point fixed to ``body`` (``None``: to the ground) at global ``xyz`` (assembly)."""
+        """A named point fixed to ``body`` at global ``xyz`` (assembly). A point of a planar body must lie in the
+        plane of its primaries, a point of a rod on its line (they are affine combinations of the primaries)."""
         if name in self._points or name in self._particles:
             raise ModelError(f"point '{name}' is defined twice")
         self._points[name] = (body, np.asarray(xyz, dtype=float))
@@ -121,12 +132,20 @@ class MechanismBuilder:
         for label, v in (("stiffness", stiffness), ("damping", damping), ("free length", free_length)):
             if not np.isfinite(v) or v < 0:
                 raise ModelError(f"spring '{name}': {label} must be finite and non-negative, got {v!r}")
+        if name in (s[0] for s in self._springs):
+            raise ModelError(f"spring '{name}' is defined twice")
         self._springs.append((name, a, b, stiffness, damping, free_length))
 
     def tyre(self, name: str, point: str, stiffness: float, damping: float, radius: float, *,
              normal=(0.0, 0.0, 1.0), ground: float = 0.0) -> None:
         """One-sided tyre spring-damper acting along ``normal`` on ``point`` while it is within ``radius`` of the
         ground plane ``p.normal = ground``."""
+        for label, v in (("stiffness", stiffness), ("damping", damping), ("radius", radius), ("ground", ground)):
+            if not np.isfinite(v) or (label != "ground" and v < 0):
+                raise ModelError(f"tyre '{name}': {label} must be finite" + (" and non-negative" if label != "ground"
+                                                                              else "") + f", got {v!r}")
+        if name in (t[0] for t in self._tyres):
+            raise ModelError(f"tyre '{name}' is defined twice")
         self._tyres.append((name, point, np.asarray(normal, dtype=float), stiffness, damping, radius, ground))
 
     def applied_force(self, name: str, point: str, fn: Callable) -> None:
@@ -142,177 +161,388 @@ class MechanismBuilder:
         """Check everything and return the mechanism and its assembly state ``x0`` ``(3F,)``.
 
         Raises :class:`ModelError` naming the culprit for: unknown names, a dangling particle (in no body and no
-        link), violated constraints at the given positions, redundant (over-constrained) constraints, a
+        joint), violated constraints at the given positions, redundant (over-constrained) constraints, a
         mechanism whose degrees of freedom differ from ``dof``, a spring of zero length, a direction of motion
         that carries no mass. Singular particle placements and non-physical inertias are refused by
         :mod:`particlesim.particles` and :mod:`particlesim.inertia` with the body's name.
         """
-        names = list(self._particles)
-        index = {n: i for i, n in enumerate(names)}
-        pos = np.stack([self._particles[n][0] for n in names]) if names else np.zeros((0, 3))
-        is_ground = np.array([self._particles[n][1] for n in names], dtype=bool)
+        return _Build(self).run(dof)
 
-        def idx(n: str, what: str) -> int:
-            if n not in index:
-                raise ModelError(f"{what}: unknown particle '{n}'")
-            return index[n]
 
-        bodies, masses, coms, inertias, prims, distance = [], [], [], [], [], []
-        lengths = []
-        seen: set = set()
-        for name, inertia, primaries, (rot, origin), on_negative in self._bodies:
-            ids = tuple(idx(p, f"body '{name}'") for p in primaries)
-            rot = np.asarray(rot, dtype=float)
-            local = (pos[list(ids)] - np.asarray(origin, dtype=float)) @ rot
-            kind = check_placement(local, name)
-            if all(is_ground[i] for i in ids):
-                raise ModelError(f"body '{name}': all its particles are fixed to the ground")
-            equivalent_particles(inertia, local, name=name, on_negative=on_negative)  # placement/representability
-            bodies.append(BodySpec(name=name, kind=kind, primaries=ids))
-            masses.append(inertia.mass)
-            coms.append(inertia.com)
-            inertias.append(inertia.inertia)
-            prims.append(jnp.asarray(local))
-            for a in range(len(ids)):
-                for b in range(a + 1, len(ids)):
-                    pair = frozenset((ids[a], ids[b]))
-                    if pair in seen:  # two shared particles (a revolute joint): one constraint for both bodies
-                        continue
-                    seen.add(pair)
-                    if not (is_ground[ids[a]] and is_ground[ids[b]]):
-                        distance.append((ids[a], ids[b], f"body '{name}' distance {primaries[a]}-{primaries[b]}"))
-                        lengths.append(np.linalg.norm(pos[ids[a]] - pos[ids[b]]))
-        free = tuple(int(i) for i in np.flatnonzero(~is_ground))
-        used = {i for b in bodies for i in b.primaries}
+class _Build:
+    """One build: the stages of :meth:`MechanismBuilder.build`, in order, on NumPy arrays."""
 
-        points = []
-        point_index = {}
-        for n in names:
-            point_index[n] = len(points)
-            points.append(PointSpec(name=n, particle=index[n], body=-1, local=jnp.zeros(3)))
-        body_index = {b.name: k for k, b in enumerate(bodies)}
-        for pname, (bname, xyz) in self._points.items():
-            if bname is None:
-                raise ModelError(f"point '{pname}': a ground point must be declared with ground(...)")
-            if bname not in body_index:
-                raise ModelError(f"point '{pname}': unknown body '{bname}'")
-            b = bodies[body_index[bname]]
-            p = pos[list(b.primaries)]
-            if b.kind == "rod":
-                u = p[1] - p[0]
-                s = float((xyz - p[0]) @ u / (u @ u))
-                if np.linalg.norm(p[0] + s * u - xyz) > ASSEMBLY_RTOL * np.linalg.norm(u):
-                    raise ModelError(f"point '{pname}': not on the line of rod body '{bname}'")
-                local = np.array([s, 0.0, 0.0])
-            else:
-                f = np.asarray(frame_from_points(*map(jnp.asarray, p[:3])))
-                local = f.T @ (xyz - p[0])
-            point_index[pname] = len(points)
-            points.append(PointSpec(name=pname, particle=-1, body=body_index[bname], local=jnp.asarray(local)))
+    def __init__(self, mb: MechanismBuilder):
+        self.mb = mb
+        self.names = list(mb._particles)
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self.pos = [mb._particles[n][0] for n in self.names]
+        self.is_ground = [mb._particles[n][1] for n in self.names]
+        self.body_names: list[str] = []
+        self.body_particles: list[tuple[int, ...]] = []
+        self.body_pose: list[tuple[np.ndarray, np.ndarray]] = []
+        self.inertia: list[RigidInertia] = []
+        self.local_primaries: list[np.ndarray] = []
+        self.particle_masses: list[np.ndarray] = []
+        self.member: dict[int, list[int]] = {}  # particle -> bodies listing it
+        self.point_names: list[str] = []
+        self.point_body: list[int] = []
+        self.point_local: list[np.ndarray] = []
+        self.point_world: list[np.ndarray] = []
+        self.point_index: dict[str, int] = {}
+        self.dot: list[tuple] = []  # (a, b, c, d, scale, kappa, label)
+        self.lin: list[tuple] = []  # (a, b, axis, label)
 
-        def pidx(n, what):
-            if n not in point_index:
-                raise ModelError(f"{what}: unknown particle or point '{n}'")
-            return point_index[n]
-
-        def where(k):  # assembly position of point k
-            pt = points[k]
-            if pt.particle >= 0:
-                return pos[pt.particle]
-            return np.asarray(_point_world(bodies[pt.body], np.asarray(pt.local), pos))
-
-        coincide, generic, point_lengths, offsets = [], [], [], []
-        for kind, pnames, label, length in self._joints:
-            ks = tuple(pidx(n, label) for n in pnames)
-            particles_only = all(points[k].particle >= 0 for k in ks)
-            if kind == "link" and particles_only:
-                distance.append((ks[0], ks[1], label))
-                lengths.append(np.linalg.norm(pos[ks[0]] - pos[ks[1]]) if length is None else float(length))
-            elif kind == "coincide" and particles_only:
-                coincide.append((ks[0], ks[1], label))
-            elif kind == "link":
-                generic.append(("link", ks, label, len(point_lengths)))
-                point_lengths.append(np.linalg.norm(where(ks[0]) - where(ks[1])) if length is None else float(length))
-            elif kind == "coincide":
-                generic.append(("coincide", ks, label, -1))
-            elif kind == "on_line":
-                b, o, d0, d1, ref = (where(k) for k in ks)
-                if np.linalg.norm(np.cross(d1 - d0, ref - d0)) <= 1e-9 * np.linalg.norm(d1 - d0) ** 2:
-                    raise ModelError(f"{label}: reference point '{pnames[4]}' lies on the line")
-                generic.append(("on_line", ks, label, -1))
-            else:
-                a0, a1, a2, b0, _, b2 = (where(k) for k in ks)
-                if np.linalg.norm(np.cross(a1 - a0, a2 - a0)) <= 1e-9 * np.linalg.norm(a1 - a0) ** 2:
-                    raise ModelError(f"{label}: point '{pnames[2]}' lies on the axis '{pnames[0]}'-'{pnames[1]}'")
-                f = np.asarray(frame_from_points(jnp.asarray(a0), jnp.asarray(a1), jnp.asarray(a2)))
-                generic.append(("prismatic", ks, label, len(offsets)))
-                offsets.append(float(f[:, 1] @ (b2 - b0)))
-        constrained = {k for kind, ks, _, _ in generic for k in ks} | {i for i, j, _ in coincide} | \
-            {j for i, j, _ in coincide} | {i for i, j, _ in distance} | {j for i, j, _ in distance}
-        for i in free:
-            if i not in used and i not in constrained:
-                raise ModelError(f"particle '{names[i]}' is dangling: it belongs to no body and no joint")
-
-        mech0 = dict(
-            body_mass=tuple(masses), body_com=tuple(coms), body_inertia=tuple(inertias), body_primaries=tuple(prims),
-            ground_xyz=jnp.asarray(pos[is_ground]).reshape(-1, 3), lengths=jnp.asarray(lengths, dtype=float),
-            point_lengths=jnp.asarray(point_lengths, dtype=float), offsets=jnp.asarray(offsets, dtype=float), gravity=jnp.asarray(self.gravity), points=tuple(points),
-            particle_names=tuple(names), free=free, ground=tuple(int(i) for i in np.flatnonzero(is_ground)),
-            bodies=tuple(bodies), distance_pairs=tuple(distance), coincide_pairs=tuple(coincide),
-            generic=tuple(generic),
-        )
-        springs = []
-        for name, a, b, k, c, l0 in self._springs:
-            springs.append(SpringSpec(name=name, a=pidx(a, f"spring '{name}'"), b=pidx(b, f"spring '{name}'"),
-                                      stiffness=jnp.asarray(k, dtype=float), damping=jnp.asarray(c, dtype=float),
-                                      free_length=jnp.asarray(l0, dtype=float)))
-        tyres = []
-        for name, pt, normal, k, c, radius, ground in self._tyres:
-            nrm = np.linalg.norm(normal)
-            if not np.isfinite(nrm) or nrm == 0:
-                raise ModelError(f"tyre '{name}': normal must be a non-zero vector")
-            tyres.append(TyreSpec(name=name, point=pidx(pt, f"tyre '{name}'"), normal=tuple(float(v) for v in normal / nrm),
-                                  stiffness=jnp.asarray(k, dtype=float), damping=jnp.asarray(c, dtype=float),
-                                  radius=jnp.asarray(radius, dtype=float), ground=jnp.asarray(ground, dtype=float)))
-        applied = []
-        for name, kind, target, fn in self._applied:
-            if kind == "force":
-                applied.append(AppliedSpec(name=name, kind=kind, target=pidx(target, f"force '{name}'"), fn=fn))
-            else:
-                if target not in body_index or bodies[body_index[target]].kind == "rod":
-                    raise ModelError(f"torque '{name}': '{target}' is not a spatial or planar body")
-                applied.append(AppliedSpec(name=name, kind=kind, target=body_index[target], fn=fn))
-        mech = Mechanism(springs=tuple(springs), tyres=tuple(tyres), applied=tuple(applied), **mech0)
-        x0 = pos[list(free)].reshape(-1)
-        _check(mech, x0, dof)
+    def run(self, dof):
+        self.bodies()
+        plans = self.joint_plans()  # may add hidden ground particles (ground-side joint directions)
+        self.points()
+        self.body_rows()
+        self.joints(plans)
+        self.check_dangling()
+        mech = self.mechanism()
+        x0 = np.stack([self.pos[i] for i in mech.topo.free]).reshape(-1) if mech.topo.free else np.zeros(0)
+        _check(self, mech, x0, dof)
         return mech, x0
 
+    # -- stages --
+    def particle(self, n: str, what: str) -> int:
+        if n not in self.index:
+            raise ModelError(f"{what}: unknown particle '{n}'")
+        return self.index[n]
 
-def _check(mech: Mechanism, x0: np.ndarray, dof: Optional[int]) -> None:
-    """Assembly, rank, degrees of freedom, positive kinetic energy, spring lengths."""
-    size = max(float(np.ptp(np.asarray(mech.all_positions(jnp.asarray(x0))), axis=0).max()), 1e-12)
-    labels = constraint_labels(mech)
-    res = np.asarray(constraints(mech, jnp.asarray(x0)))
+    def bodies(self):
+        for name, inertia, primaries, (rot, origin), on_negative in self.mb._bodies:
+            ids = tuple(self.particle(p, f"body '{name}'") for p in primaries)
+            rot = np.asarray(rot, dtype=float)
+            origin = np.asarray(origin, dtype=float)
+            local = (np.stack([self.pos[i] for i in ids]) - origin) @ rot
+            check_placement(local, name)
+            if all(self.is_ground[i] for i in ids):
+                raise ModelError(f"body '{name}': all its particles are fixed to the ground")
+            ps = equivalent_particles(inertia, local, name=name, on_negative=on_negative)  # placement, representable
+            self.particle_masses.append(np.asarray(ps.masses))
+            b = len(self.body_names)
+            self.body_names.append(name)
+            self.body_particles.append(ids)
+            self.body_pose.append((rot, origin))
+            self.inertia.append(inertia)
+            self.local_primaries.append(local)
+            for i in ids:
+                self.member.setdefault(i, []).append(b)
+
+    def where(self, n: str, what: str) -> tuple[np.ndarray, set]:
+        """Assembly position of a particle or user point and the bodies it may belong to (``-1``: ground)."""
+        if n in self.index:
+            i = self.index[n]
+            cand = set(self.member.get(i, []))
+            if self.is_ground[i]:
+                cand.add(-1)
+            return self.pos[i], cand
+        if n in self.mb._points:
+            bname, xyz = self.mb._points[n]
+            return xyz, ({self.body_names.index(bname)} if bname in self.body_names else set())
+        raise ModelError(f"{what}: unknown particle or point '{n}'")
+
+    def host(self, names: Sequence[str], label: str) -> int:
+        """The body (``-1``: the ground) that all the named points belong to."""
+        common = None
+        for n in names:
+            cand = self.where(n, label)[1]
+            common = cand if common is None else common & cand
+        if not common:
+            raise ModelError(f"{label}: points {list(names)} do not all belong to one body (or the ground)")
+        return -1 if -1 in common else min(common)
+
+    def joint_plans(self) -> list:
+        """Geometry of every joint at assembly: for lines and prismatic joints the host body and the unit
+        directions normal to the axis, fixed in the host (as points at ``origin + ell * n``)."""
+        plans = []
+        for kind, pnames, label, length in self.mb._joints:
+            world = [self.where(n, label)[0] for n in pnames]
+            dirs, host, ell = (), None, None
+            if kind == "on_line":
+                _, o, d0, d1, ref = world
+                u = d1 - d0
+                ell = float(np.linalg.norm(u))
+                w = (ref - d0) - ((ref - d0) @ u) / (u @ u) * u if ell > 0 else u
+                if ell == 0 or np.linalg.norm(w) <= 1e-9 * ell:
+                    raise ModelError(f"{label}: reference point '{pnames[4]}' lies on the line")
+                n1 = _unit(w)
+                host = self.host(pnames[1:], label)
+                dirs = (n1, np.cross(u / ell, n1))
+            elif kind == "prismatic":
+                a0, a1, a2, b0, _, b2 = world
+                u = a1 - a0
+                ell = float(np.linalg.norm(u))
+                w = (a2 - a0) - ((a2 - a0) @ u) / (u @ u) * u if ell > 0 else u
+                if ell == 0 or np.linalg.norm(w) <= 1e-9 * ell:
+                    raise ModelError(f"{label}: point '{pnames[2]}' lies on the axis '{pnames[0]}'-'{pnames[1]}'")
+                u = u / ell
+                n1 = _unit(w)
+                wb = (b2 - b0) - ((b2 - b0) @ u) * u
+                if np.linalg.norm(wb) <= 1e-9 * ell:
+                    raise ModelError(f"{label}: point '{pnames[5]}' lies on the axis through '{pnames[3]}'")
+                # The rotation lock uses the direction normal to both the axis and b2's offset from it, so its
+                # gradient never vanishes (in a planar model too, where b2 lies in the plane of the axis and n1).
+                host = self.host(pnames[:3], label)
+                dirs = (n1, np.cross(u, n1), _unit(np.cross(u, wb)))
+            origin = world[1] if kind == "on_line" else (world[0] if kind == "prismatic" else None)
+            names = []
+            if host == -1:  # a ground-side direction: a hidden ground particle
+                for j, d in enumerate(dirs):
+                    nm = f"{label} / direction {j + 1}"
+                    self.index[nm] = len(self.names)
+                    self.names.append(nm)
+                    self.pos.append(origin + ell * d)
+                    self.is_ground.append(True)
+                    names.append(nm)
+            plans.append((kind, pnames, label, length, host, origin, dirs, ell, names))
+        return plans
+
+    def add_point(self, name: str, body: int, world: np.ndarray) -> int:
+        """A point fixed to ``body`` (``-1``: a particle point) at assembly position ``world``."""
+        if name in self.point_index:
+            raise ModelError(f"point '{name}' is defined twice")
+        k = len(self.point_names)
+        self.point_names.append(name)
+        self.point_body.append(body)
+        if body >= 0:
+            rot, origin = self.body_pose[body]
+            local = rot.T @ (world - origin)
+            prim = self.local_primaries[body]
+            kind = {2: "rod", 3: "planar", 4: "spatial"}[len(prim)]
+            if kind != "spatial":
+                e = (prim[1:] - prim[0]).T
+                coef = np.linalg.lstsq(e, local - prim[0], rcond=None)[0]
+                off = np.linalg.norm(prim[0] + e @ coef - local)
+                size = np.max(np.linalg.norm(prim - prim[0], axis=1))
+                if off > 1e-9 * max(size, 1.0):
+                    where = "plane of the primaries of planar" if kind == "planar" else "line of rod"
+                    raise ModelError(f"point '{name}': lies {off:.3g} m off the {where} body "
+                                     f"'{self.body_names[body]}' (world {np.asarray(world).tolist()}); a point fixed "
+                                     "to it must lie there (give the body 4 primaries to attach points anywhere)")
+            self.point_local.append(local)
+        else:
+            self.point_local.append(np.zeros(3))
+        self.point_world.append(np.asarray(world, dtype=float))
+        self.point_index[name] = k
+        return k
+
+    def points(self):
+        for i, n in enumerate(self.names):
+            self.add_point(n, -1, self.pos[i])
+        for pname, (bname, xyz) in self.mb._points.items():
+            if bname is None:
+                raise ModelError(f"point '{pname}': a ground point must be declared with ground(...)")
+            if bname not in self.body_names:
+                raise ModelError(f"point '{pname}': unknown body '{bname}'")
+            self.add_point(pname, self.body_names.index(bname), xyz)
+
+    def body_rows(self):
+        seen: set = set()
+        for b, ids in enumerate(self.body_particles):
+            prim_names = [self.names[i] for i in ids]
+            for s in range(len(ids)):
+                for t in range(s + 1, len(ids)):
+                    i, j = ids[s], ids[t]
+                    pair = frozenset((i, j))
+                    if pair in seen or (self.is_ground[i] and self.is_ground[j]):
+                        continue  # two shared particles (a revolute joint): one constraint for both bodies
+                    seen.add(pair)
+                    ell = np.linalg.norm(self.pos[i] - self.pos[j])
+                    self.dot.append((i, j, i, j, 0.5, 0.5 * ell**2,
+                                     f"body '{self.body_names[b]}' distance {prim_names[s]}-{prim_names[t]}"))
+
+    def pidx(self, n: str, what: str) -> int:
+        if n not in self.point_index:
+            raise ModelError(f"{what}: unknown particle or point '{n}'")
+        return self.point_index[n]
+
+    def joints(self, plans):
+        for kind, pnames, label, length, host, origin, dirs, ell, ground_names in plans:
+            ks = tuple(self.pidx(n, label) for n in pnames)
+            world = [self.point_world[k] for k in ks]
+            if kind == "link":
+                d = np.linalg.norm(world[0] - world[1]) if length is None else float(length)
+                self.dot.append((ks[0], ks[1], ks[0], ks[1], 0.5, 0.5 * d**2, label))
+                continue
+            if kind == "coincide":
+                for axis, c in zip(_AXES, "xyz"):
+                    self.lin.append((ks[0], ks[1], axis, f"{label} ({c})"))
+                continue
+            if host == -1:
+                n = [self.point_index[nm] for nm in ground_names]
+            else:
+                n = [self.add_point(f"{label} / direction {j + 1}", host, origin + ell * d)
+                     for j, d in enumerate(dirs)]
+            # rows s (N - O).(p - q) with N - O = ell * (unit direction fixed in the host)
+            if kind == "on_line":
+                for j, c in enumerate(("n1", "n2")):
+                    self.dot.append((n[j], ks[1], ks[0], ks[1], 1.0 / ell, 0.0, f"{label} ({c})"))
+            else:
+                a0, b0, b1, b2 = ks[0], ks[3], ks[4], ks[5]
+                for p, tag in ((b0, "axis 1"), (b1, "axis 2")):
+                    for j, c in enumerate("ab"):
+                        self.dot.append((n[j], a0, p, a0, 1.0 / ell, 0.0, f"{label} ({tag}{c})"))
+                self.dot.append((n[2], a0, b2, b0, 1.0 / ell, 0.0, f"{label} (rotation)"))
+
+    def check_dangling(self):
+        constrained = set()
+        for a, b, c, d, *_ in self.dot:
+            constrained |= {a, b, c, d}
+        for a, b, *_ in self.lin:
+            constrained |= {a, b}
+        for i in range(len(self.names)):
+            if not self.is_ground[i] and i not in self.member and i not in constrained:
+                raise ModelError(f"particle '{self.names[i]}' is dangling: it belongs to no body and no joint")
+
+    def mechanism(self) -> Mechanism:
+        mb = self.mb
+        free = tuple(i for i in range(len(self.names)) if not self.is_ground[i])
+        ground = tuple(i for i in range(len(self.names)) if self.is_ground[i])
+        springs, tyres = [], []
+        for name, a, b, k, c, l0 in mb._springs:
+            springs.append((name, (self.pidx(a, f"spring '{name}'"), self.pidx(b, f"spring '{name}'")), k, c, l0))
+        for name, pt, normal, k, c, radius, g in mb._tyres:
+            nrm = np.linalg.norm(normal)
+            if normal.shape != (3,) or not np.isfinite(nrm) or nrm == 0:
+                raise ModelError(f"tyre '{name}': normal must be a non-zero vector of 3 numbers")
+            tyres.append((name, self.pidx(pt, f"tyre '{name}'"), tuple(float(v) for v in normal / nrm), k, c,
+                          radius, g))
+        applied = []
+        for name, kind, target, fn in mb._applied:
+            if kind == "force":
+                applied.append(AppliedSpec(name=name, kind=kind, target=self.pidx(target, f"force '{name}'"), fn=fn))
+            else:
+                if target not in self.body_names or len(self.body_particles[self.body_names.index(target)]) == 2:
+                    raise ModelError(f"torque '{name}': '{target}' is not a spatial or planar body")
+                applied.append(AppliedSpec(name=name, kind=kind, target=self.body_names.index(target), fn=fn))
+        in_body = set(self.member)
+        topo = Topology(
+            particle_names=tuple(self.names), free=free, ground=ground, body_names=tuple(self.body_names),
+            body_particles=tuple(self.body_particles), point_names=tuple(self.point_names),
+            point_body=tuple(self.point_body),
+            dot=DotRows(a=tuple(r[0] for r in self.dot), b=tuple(r[1] for r in self.dot),
+                        c=tuple(r[2] for r in self.dot), d=tuple(r[3] for r in self.dot),
+                        scale=tuple(float(r[4]) for r in self.dot), labels=tuple(r[6] for r in self.dot)),
+            linear=LinearRows(a=tuple(r[0] for r in self.lin), b=tuple(r[1] for r in self.lin),
+                              axis=tuple(r[2] for r in self.lin), labels=tuple(r[3] for r in self.lin)),
+            spring_names=tuple(s[0] for s in springs), spring_points=tuple(s[1] for s in springs),
+            tyre_names=tuple(t[0] for t in tyres), tyre_points=tuple(t[1] for t in tyres),
+            tyre_normals=tuple(t[2] for t in tyres),
+            saddle_point=any(i not in in_body for i in free))
+        if not topo.saddle_point and free:
+            ev = np.linalg.eigvalsh(_np_mass_matrix(self, topo))
+            if ev[0] <= 1e-12 * max(ev[-1], 1e-300):  # singular particle mass matrix: solve the full KKT system
+                topo = dataclasses.replace(topo, saddle_point=True)
+        prims = np.zeros((len(self.body_names), 4, 3))
+        for b, loc in enumerate(self.local_primaries):
+            prims[b, :len(loc)] = loc
+            prims[b, len(loc):] = loc[-1]
+        f = lambda v: jnp.asarray(np.asarray(v, dtype=float))  # noqa: E731
+        return Mechanism(
+            body_mass=f([float(i.mass) for i in self.inertia]).reshape(-1),
+            body_com=f([np.asarray(i.com) for i in self.inertia]).reshape(-1, 3),
+            body_inertia=f([np.asarray(i.inertia) for i in self.inertia]).reshape(-1, 3, 3),
+            body_primaries=f(prims), point_local=f(self.point_local).reshape(-1, 3),
+            ground_xyz=f([self.pos[i] for i in ground]).reshape(-1, 3),
+            dot_kappa=f([r[5] for r in self.dot]).reshape(-1),
+            spring_stiffness=f([s[2] for s in springs]).reshape(-1), spring_damping=f([s[3] for s in springs]).reshape(-1),
+            spring_free_length=f([s[4] for s in springs]).reshape(-1),
+            tyre_stiffness=f([t[3] for t in tyres]).reshape(-1), tyre_damping=f([t[4] for t in tyres]).reshape(-1),
+            tyre_radius=f([t[5] for t in tyres]).reshape(-1), tyre_ground=f([t[6] for t in tyres]).reshape(-1),
+            gravity=f(mb.gravity), applied=tuple(applied), topo=topo)
+
+
+def _np_point_weights(bd: _Build, topo: Topology) -> np.ndarray:
+    """``W (K, F)``: the weight of every free particle in every point at assembly (NumPy twin of
+    :func:`~.constraints.point_weights` composed with :func:`~.constraints.point_free_weights`)."""
+    col = topo.free_column()
+    w = np.zeros((len(topo.point_names), len(topo.free)))
+    for k, b in enumerate(topo.point_body):
+        if b < 0:
+            if col[k] >= 0:
+                w[k, col[k]] = 1.0
+            continue
+        prim = bd.local_primaries[b]
+        n = len(prim)
+        a = np.vstack([prim.T, np.ones((1, n))])
+        coef = np.linalg.lstsq(a, np.append(bd.point_local[k], 1.0), rcond=None)[0]
+        for i, c in zip(topo.body_particles[b], coef):
+            if col[i] >= 0:
+                w[k, col[i]] += c
+    return w
+
+
+def _np_rows(topo: Topology, kappa: np.ndarray, pts: np.ndarray, wk: np.ndarray):
+    """Residuals and Jacobian ``(C, 3F)`` of all rows at point positions ``pts`` (NumPy)."""
+    d, lin = topo.dot, topo.linear
+    res, jac = [], []
+    if len(d):
+        a, b, c, e = (np.asarray(v, dtype=int) for v in (d.a, d.b, d.c, d.d))
+        s = np.asarray(d.scale)
+        v, u = pts[a] - pts[b], pts[c] - pts[e]
+        res.append(s * np.sum(v * u, axis=1) - kappa)
+        blocks = np.stack([s[:, None] * u, -s[:, None] * u, s[:, None] * v, -s[:, None] * v], axis=1)
+        jac.append(np.einsum("rsk,rsf->rfk", blocks, wk[d.slots]))
+    if len(lin):
+        axis = np.asarray(lin.axis, dtype=float)
+        a, b = np.asarray(lin.a, dtype=int), np.asarray(lin.b, dtype=int)
+        res.append(np.sum(axis * (pts[a] - pts[b]), axis=1))
+        blocks = np.stack([axis, -axis], axis=1)
+        jac.append(np.einsum("rsk,rsf->rfk", blocks, wk[lin.slots]))
+    n = 3 * len(topo.free)
+    if not res:
+        return np.zeros(0), np.zeros((0, n))
+    j = np.concatenate(jac, axis=0)
+    return np.concatenate(res), j.reshape(j.shape[0], n)
+
+
+def _np_mass_matrix(bd: _Build, topo: Topology) -> np.ndarray:
+    """Scalar mass matrix of the free particles at assembly, ``sum_b B_b^T diag(m_b) B_b`` (NumPy)."""
+    from ..particles import PAIRS
+
+    col = topo.free_column()
+    m = np.zeros((len(topo.free), len(topo.free)))
+    for b, ids in enumerate(topo.body_particles):
+        k = len(ids)
+        pairs = PAIRS[{2: "rod", 3: "planar", 4: "spatial"}[k]]
+        inc = np.zeros((k + len(pairs), k))
+        inc[:k] = np.eye(k)
+        for r, (i, j) in enumerate(pairs):
+            inc[k + r, [i, j]] = 0.5
+        block = inc.T @ (bd.particle_masses[b][:, None] * inc)
+        for s, i in enumerate(ids):
+            for t, j in enumerate(ids):
+                if col[i] >= 0 and col[j] >= 0:
+                    m[col[i], col[j]] += block[s, t]
+    return m
+
+
+def _check(bd: _Build, mech: Mechanism, x0: np.ndarray, dof: Optional[int]) -> None:
+    """Assembly, spring lengths, rank, degrees of freedom, positive kinetic energy on every admissible motion."""
+    topo = mech.topo
+    pts = np.asarray(bd.point_world)
+    size = max(float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0, 1e-12)
+    wk = _np_point_weights(bd, topo)
+    res, j = _np_rows(topo, np.asarray(mech.dot_kappa), pts, wk)
+    labels = topo.row_labels()
     bad = [(labels[i], float(res[i])) for i in np.flatnonzero(np.abs(res) > ASSEMBLY_RTOL * size * max(size, 1.0))]
     if bad:
         raise ModelError("initial positions violate constraints: " +
                          ", ".join(f"{lab} (residual {v:.3g})" for lab, v in bad[:6]))
-    for s in mech.springs:
-        ell = float(np.linalg.norm(np.asarray(mech.point_position(s.a, mech.all_positions(jnp.asarray(x0)))
-                                              - mech.point_position(s.b, mech.all_positions(jnp.asarray(x0))))))
-        if ell <= ASSEMBLY_RTOL * size:
-            raise ModelError(f"spring '{s.name}': its end points coincide (zero length): its direction is undefined")
-    j = np.asarray(constraint_jacobian(mech, jnp.asarray(x0)))
+    for name, (a, b) in zip(topo.spring_names, topo.spring_points):
+        if np.linalg.norm(pts[a] - pts[b]) <= ASSEMBLY_RTOL * size:
+            raise ModelError(f"spring '{name}': its end points coincide (zero length): its direction is undefined")
     n = j.shape[1]
+    rank = 0
     if j.shape[0]:
         sv = np.linalg.svd(j, compute_uv=False)
         rank = int(np.sum(sv > RANK_RTOL * sv[0]))
         if rank < j.shape[0]:
-            culprit = _redundant_rows(j, labels)
             raise ModelError(f"over-constrained: {j.shape[0] - rank} redundant constraint(s) among "
-                             f"{j.shape[0]}; first redundant: {culprit}")
-    else:
-        rank = 0
+                             f"{j.shape[0]}; first redundant: {_redundant_rows(j, labels)}")
     if dof is not None and n - rank != dof:
         what = "under" if n - rank > dof else "over"
         raise ModelError(f"{what}-constrained: the mechanism has {n - rank} degrees of freedom, expected {dof}")
@@ -320,7 +550,8 @@ def _check(mech: Mechanism, x0: np.ndarray, dof: Optional[int]) -> None:
     if n - rank:
         _, _, vt = np.linalg.svd(j if j.shape[0] else np.zeros((1, n)))
         z = vt[rank:].T
-        m_red = z.T @ np.asarray(mech.mass_matrix()) @ z
+        m3 = np.kron(_np_mass_matrix(bd, topo), np.eye(3))
+        m_red = z.T @ m3 @ z
         ev = np.linalg.eigvalsh(0.5 * (m_red + m_red.T))
         if ev[0] <= 1e-12 * max(ev[-1], 1e-300):
             raise ModelError("a free motion of the mechanism carries no mass (kinetic energy matrix on the "
@@ -329,19 +560,14 @@ def _check(mech: Mechanism, x0: np.ndarray, dof: Optional[int]) -> None:
 
 
 def _redundant_rows(j: np.ndarray, labels: list[str]) -> str:
-    kept = []
+    """Label of the first row that depends on the rows before it (one QR-updated pass)."""
+    kept = np.zeros((0, j.shape[1]))
+    scale = np.max(np.linalg.norm(j, axis=1))
     for i in range(j.shape[0]):
-        trial = j[kept + [i]]
-        sv = np.linalg.svd(trial, compute_uv=False)
-        if np.sum(sv > RANK_RTOL * sv[0]) == len(kept) + 1:
-            kept.append(i)
-        else:
+        r = j[i] - (kept.T @ (kept @ j[i]) if len(kept) else 0.0)
+        r = r - (kept.T @ (kept @ r) if len(kept) else 0.0)
+        nr = np.linalg.norm(r)
+        if nr <= RANK_RTOL * scale:
             return labels[i]
+        kept = np.vstack([kept, r / nr])
     return "?"
-
-
-def _point_world(body: BodySpec, local: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    p = pos[list(body.primaries)]
-    if body.kind == "rod":
-        return p[0] + local[0] * (p[1] - p[0])
-    return p[0] + np.asarray(frame_from_points(*map(jnp.asarray, p[:3]))) @ local

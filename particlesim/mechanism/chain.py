@@ -28,10 +28,10 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..errors import ModelError
-from ..particles import PAIRS, solve_particle_masses
+from ..particles import primary_mass_matrix
 from .model import Mechanism
 
-__all__ = ["ChainPlan", "chain_plan", "chain_accelerations"]
+__all__ = ["ChainPlan", "chain_plan", "chain_accelerations", "chain_mass_blocks", "chain_project"]
 
 
 class ChainPlan(eqx.Module):
@@ -42,17 +42,20 @@ class ChainPlan(eqx.Module):
     owned: tuple = eqx.field(static=True)  # local slots owned by the body
     rows: tuple = eqx.field(static=True)  # local slot pairs of the body's distance constraints
     child_slots: tuple = eqx.field(static=True)  # positions in `owned` of the child's shared particles
+    row_index: tuple = eqx.field(static=True)  # (N, R) index of each body row among the mechanism's dot rows
 
 
 def chain_plan(mech: Mechanism) -> ChainPlan:
     """Recognise a uniform serial chain in ``mech`` (bodies in chain order) or raise :class:`ModelError`."""
-    if mech.coincide_pairs or mech.generic or mech.springs or mech.tyres or mech.applied:
+    topo = mech.topo
+    if len(topo.linear) or topo.spring_names or topo.tyre_names or mech.applied or \
+            len(topo.point_names) != topo.n_particles:
         raise ModelError("recursive chain solve: only bodies, shared particles and gravity are supported")
-    kinds = {b.kind for b in mech.bodies}
-    if len(kinds) != 1 or len(mech.bodies) < 1:
+    kinds = {len(p) for p in topo.body_particles}
+    if len(kinds) != 1 or len(topo.body_particles) < 1:
         raise ModelError("recursive chain solve: every body must be of one kind")
-    idx = [tuple(b.primaries) for b in mech.bodies]
-    ground = set(mech.ground)
+    idx = [tuple(p) for p in topo.body_particles]
+    ground = set(topo.ground)
     first = idx[0]
     shared = tuple(s for s, p in enumerate(first) if p in ground)
     owned = tuple(s for s in range(len(first)) if s not in shared)
@@ -62,10 +65,10 @@ def chain_plan(mech: Mechanism) -> ChainPlan:
     for j in range(len(idx)):
         if tuple(s for s in range(len(idx[j])) if (j == 0 and idx[j][s] in ground) or
                  (j > 0 and idx[j][s] in idx[j - 1])) != shared:
-            raise ModelError(f"recursive chain solve: body '{mech.bodies[j].name}' shares other slots with its "
+            raise ModelError(f"recursive chain solve: body '{topo.body_names[j]}' shares other slots with its "
                              "parent than the base body does with the ground")
         if any(idx[j][s] in ground for s in owned):
-            raise ModelError(f"recursive chain solve: body '{mech.bodies[j].name}' owns a ground particle")
+            raise ModelError(f"recursive chain solve: body '{topo.body_names[j]}' owns a ground particle")
         if j > 0:
             slots = tuple(owned.index(idx[j - 1].index(idx[j][s])) for s in shared)
             if child_slots is not None and slots != child_slots:
@@ -75,91 +78,176 @@ def chain_plan(mech: Mechanism) -> ChainPlan:
         child_slots = tuple(range(len(shared)))
     rows = tuple((a, b) for a, b in _all_pairs(len(first)) if not (a in shared and b in shared))
     expected = {frozenset((idx[j][a], idx[j][b])) for j in range(len(idx)) for a, b in rows}
-    if expected != {frozenset(p[:2]) for p in mech.distance_pairs}:
+    d = topo.dot
+    where = {frozenset((a, b)): k for k, (a, b, c, e) in enumerate(zip(d.a, d.b, d.c, d.d)) if (a, b) == (c, e)}
+    if expected != set(where) or len(d) != len(expected):
         raise ModelError("recursive chain solve: the mechanism has constraints beyond its bodies' distances")
-    return ChainPlan(idx=tuple(idx), shared=shared, owned=owned, rows=rows, child_slots=child_slots)
+    row_index = tuple(tuple(where[frozenset((idx[j][a], idx[j][b]))] for a, b in rows) for j in range(len(idx)))
+    return ChainPlan(idx=tuple(idx), shared=shared, owned=owned, rows=rows, child_slots=child_slots,
+                     row_index=row_index)
 
 
 def _all_pairs(k):
     return [(a, b) for a in range(k) for b in range(a + 1, k)]
 
 
-def _mass_blocks(mech: Mechanism) -> Array:
-    kind = mech.bodies[0].kind
-    k = len(mech.bodies[0].primaries)
-    masses = jax.vmap(solve_particle_masses)(jnp.stack(mech.body_mass), jnp.stack(mech.body_com),
-                                             jnp.stack(mech.body_inertia), jnp.stack(mech.body_primaries))
-    inc = np.zeros((k + len(PAIRS[kind]), k))
-    inc[:k] = np.eye(k)
-    for r, (i, j) in enumerate(PAIRS[kind]):
-        inc[k + r, [i, j]] = 0.5
-    return jnp.einsum("ni,bn,nj->bij", inc, masses, inc)  # (N, k, k)
+def chain_mass_blocks(mech: Mechanism) -> Array:
+    """Every body's mass matrix in its primaries, ``(N, k, k)`` (:func:`~particlesim.particles.primary_mass_matrix`)."""
+    k = len(mech.topo.body_particles[0])
+    return jax.vmap(primary_mass_matrix)(mech.body_mass, mech.body_com, mech.body_inertia,
+                                         mech.body_primaries[:, :k])
 
 
-def chain_accelerations(mech: Mechanism, plan: ChainPlan, t, x: Float[Array, " 3F"],
-                        xd: Float[Array, " 3F"]) -> Float[Array, " 3F"]:
-    """Particle accelerations by the tip-to-base elimination; equal to the dense solve (tested)."""
-    del t
+class _System(eqx.Module):
+    """The block-tridiagonal saddle-point system of a chain at one configuration."""
+
+    dmat: Array  # (N, nb, nb) diagonal blocks: owned particles' mass and the body's rows
+    umat: Array  # (N, nb, nb) coupling of block j with block j + 1
+    d: Array  # (N, R, 3) row vectors r_a - r_b
+
+
+def _system(mech: Mechanism, plan: ChainPlan, mb: Array, x) -> _System:
     idx = np.asarray(plan.idx)  # (N, k)
     n_bodies = idx.shape[0]
     sh, ow = np.asarray(plan.shared), np.asarray(plan.owned)
     no, ns, nr = len(ow), len(sh), len(plan.rows)
     r = mech.all_positions(x)[idx]  # (N, k, 3)
-    free_mask = np.zeros(len(mech.particle_names))
-    free_mask[np.asarray(mech.free)] = 1.0
-    v = (mech.all_positions(xd) * free_mask[:, None])[idx]
-    mb = _mass_blocks(mech)  # (N, k, k)
-    eye3 = jnp.eye(3)
+    eye3 = jnp.eye(3, dtype=x.dtype)
     ra, rb = np.asarray([p[0] for p in plan.rows]), np.asarray([p[1] for p in plan.rows])
     d = r[:, ra] - r[:, rb]  # (N, R, 3)
-    gamma = -jnp.sum((v[:, ra] - v[:, rb]) ** 2, axis=-1)  # (N, R)
     # Row Jacobians w.r.t. the local slots: (N, R, k, 3).
-    jac = jnp.zeros((n_bodies, nr, idx.shape[1], 3))
+    jac = jnp.zeros((n_bodies, nr, idx.shape[1], 3), dtype=x.dtype)
     jac = jac.at[:, np.arange(nr), ra].add(d).at[:, np.arange(nr), rb].add(-d)
     g_own = jac[:, :, ow].reshape(n_bodies, nr, 3 * no)
     h_sh = jac[:, :, sh].reshape(n_bodies, nr, 3 * ns)
     m_oo = jnp.einsum("bij,kl->bikjl", mb[:, ow][:, :, ow], eye3).reshape(n_bodies, 3 * no, 3 * no)
     m_ss = jnp.einsum("bij,kl->bikjl", mb[:, sh][:, :, sh], eye3).reshape(n_bodies, 3 * ns, 3 * ns)
     m_so = jnp.einsum("bij,kl->bikjl", mb[:, sh][:, :, ow], eye3).reshape(n_bodies, 3 * ns, 3 * no)
-    lumped = jnp.sum(mb, axis=2)  # (N, k): each body's share of its particles' weight
-    grav_own = lumped[:, ow, None] * mech.gravity[None, None, :]  # (N, O, 3)
-    grav_sh = lumped[:, sh, None] * mech.gravity[None, None, :]  # (N, S, 3)
-    # Embedding of a child's shared coordinates into the parent's owned coordinates.
-    emb = np.zeros((3 * no, 3 * ns))
-    for s, o in enumerate(plan.child_slots):
-        emb[3 * o:3 * o + 3, 3 * s:3 * s + 3] = np.eye(3)
-    zero_child = lambda a: jnp.concatenate([a[1:], jnp.zeros_like(a[:1])], axis=0)  # noqa: E731
-    c_mss, c_mso, c_h, c_grav = zero_child(m_ss), zero_child(m_so), zero_child(h_sh), zero_child(grav_sh)
+    emb = _embedding(plan)
+    c_mss, c_mso, c_h = _child(m_ss), _child(m_so), _child(h_sh)
     nb = 3 * no + nr
     mass_diag = m_oo + jnp.einsum("ij,bjk,lk->bil", emb, c_mss, emb)
-    dmat = jnp.zeros((n_bodies, nb, nb))
+    dmat = jnp.zeros((n_bodies, nb, nb), dtype=x.dtype)
     dmat = dmat.at[:, :3 * no, :3 * no].set(mass_diag)
     dmat = dmat.at[:, :3 * no, 3 * no:].set(jnp.swapaxes(g_own, 1, 2))
     dmat = dmat.at[:, 3 * no:, :3 * no].set(g_own)
-    umat = jnp.zeros((n_bodies, nb, nb))  # couples block j (rows) with block j + 1 (columns)
+    umat = jnp.zeros((n_bodies, nb, nb), dtype=x.dtype)
     umat = umat.at[:, :3 * no, :3 * no].set(jnp.einsum("ij,bjk->bik", emb, c_mso))
     umat = umat.at[:, :3 * no, 3 * no:].set(jnp.einsum("ij,bkj->bik", emb, c_h))
-    rhs = jnp.concatenate([(grav_own.reshape(n_bodies, 3 * no)
-                            + jnp.einsum("ij,bj->bi", emb, c_grav.reshape(n_bodies, 3 * ns))), gamma], axis=1)
+    return _System(dmat, umat, d)
 
-    def backward(carry, inp):
-        d_next, r_next = carry
-        d_j, u_j, r_j = inp
-        sol = jnp.linalg.solve(d_next, jnp.concatenate([u_j.T, r_next[:, None]], axis=1))
-        d_t = d_j - u_j @ sol[:, :-1]
-        r_t = r_j - u_j @ sol[:, -1]
-        return (d_t, r_t), (d_t, r_t)
 
-    init = (jnp.eye(nb), jnp.zeros(nb))
-    _, (d_til, r_til) = jax.lax.scan(backward, init, (dmat, umat, rhs), reverse=True)
+def _embedding(plan: ChainPlan) -> np.ndarray:
+    """Embedding of a child's shared coordinates into the parent's owned coordinates."""
+    no, ns = len(plan.owned), len(plan.shared)
+    emb = np.zeros((3 * no, 3 * ns))
+    for s, o in enumerate(plan.child_slots):
+        emb[3 * o:3 * o + 3, 3 * s:3 * s + 3] = np.eye(3)
+    return emb
+
+
+def _child(a: Array) -> Array:
+    """Row j holds body j + 1's entry (the tip's child: zeros)."""
+    return jnp.concatenate([a[1:], jnp.zeros_like(a[:1])], axis=0)
+
+
+def _factor(sys: _System) -> Array:
+    """Tip-to-base Schur complements ``D~_j = D_j - U_j D~_{j+1}^-1 U_j^T``; returns their inverses (N, nb, nb)."""
+
+    def backward(dinv_next, inp):
+        d_j, u_j = inp
+        dinv = jnp.linalg.inv(d_j - u_j @ dinv_next @ u_j.T)
+        return dinv, dinv
+
+    nb = sys.dmat.shape[1]
+    _, dinv = jax.lax.scan(backward, jnp.zeros((nb, nb), dtype=sys.dmat.dtype), (sys.dmat, sys.umat), reverse=True)
+    return dinv
+
+
+def _solve(sys: _System, dinv: Array, rhs: Array) -> Array:
+    """Solve the block-tridiagonal system with the factor of :func:`_factor`: a tip-to-base sweep of the right-hand
+    side, then a base-to-tip sweep of the unknowns. ``rhs`` and the result are (N, nb)."""
+    dinv_next = _child(dinv)
+
+    def backward(r_next, inp):
+        r_j, u_j, dn = inp
+        r_t = r_j - u_j @ (dn @ r_next)
+        return r_t, r_t
+
+    _, r_til = jax.lax.scan(backward, jnp.zeros_like(rhs[0]), (rhs, sys.umat, dinv_next), reverse=True)
+    u_prev = jnp.concatenate([jnp.zeros_like(sys.umat[:1]), sys.umat[:-1]], axis=0)
 
     def forward(z_prev, inp):
-        d_t, r_t, u_prev = inp
-        z = jnp.linalg.solve(d_t, r_t - u_prev.T @ z_prev)
+        d_i, r_t, u_p = inp
+        z = d_i @ (r_t - u_p.T @ z_prev)
         return z, z
 
-    u_prev = jnp.concatenate([jnp.zeros_like(umat[:1]), umat[:-1]], axis=0)
-    _, z = jax.lax.scan(forward, jnp.zeros(nb), (d_til, r_til, u_prev))
-    acc_owned = z[:, :3 * no].reshape(n_bodies, no, 3)
-    out = jnp.zeros((len(mech.particle_names), 3)).at[idx[:, ow]].set(acc_owned)
+    _, z = jax.lax.scan(forward, jnp.zeros_like(rhs[0]), (dinv, r_til, u_prev))
+    return z
+
+
+def _owned_to_free(mech: Mechanism, plan: ChainPlan, owned: Array) -> Array:
+    idx = np.asarray(plan.idx)
+    out = jnp.zeros((mech.topo.n_particles, 3), dtype=owned.dtype).at[idx[:, np.asarray(plan.owned)]].set(owned)
     return out[np.asarray(mech.free)].reshape(-1)
+
+
+def _velocities(mech: Mechanism, plan: ChainPlan, xd) -> Array:
+    free_mask = np.zeros(mech.topo.n_particles)
+    free_mask[np.asarray(mech.free)] = 1.0
+    return (mech.all_positions(xd) * free_mask[:, None])[np.asarray(plan.idx)]  # (N, k, 3)
+
+
+def _row_pairs(plan: ChainPlan):
+    return np.asarray([p[0] for p in plan.rows]), np.asarray([p[1] for p in plan.rows])
+
+
+def chain_accelerations(mech: Mechanism, plan: ChainPlan, t, x: Float[Array, " 3F"],
+                        xd: Float[Array, " 3F"], *, mass_blocks: Array | None = None) -> Float[Array, " 3F"]:
+    """Particle accelerations by the tip-to-base elimination; equal to the dense solve (tested). ``mass_blocks``
+    from :func:`chain_mass_blocks` (computed here if not given)."""
+    del t
+    n_bodies = len(plan.idx)
+    sh, ow = np.asarray(plan.shared), np.asarray(plan.owned)
+    no, ns = len(ow), len(sh)
+    mb = chain_mass_blocks(mech) if mass_blocks is None else mass_blocks  # (N, k, k)
+    sys = _system(mech, plan, mb, x)
+    v = _velocities(mech, plan, xd)
+    ra, rb = _row_pairs(plan)
+    gamma = -jnp.sum((v[:, ra] - v[:, rb]) ** 2, axis=-1)  # (N, R)
+    lumped = jnp.sum(mb, axis=2)  # (N, k): each body's share of its particles' weight
+    grav_own = lumped[:, ow, None] * mech.gravity[None, None, :]  # (N, O, 3)
+    grav_sh = _child(lumped[:, sh, None] * mech.gravity[None, None, :])  # (N, S, 3)
+    rhs = jnp.concatenate([(grav_own.reshape(n_bodies, 3 * no)
+                            + jnp.einsum("ij,bj->bi", _embedding(plan), grav_sh.reshape(n_bodies, 3 * ns))),
+                           gamma], axis=1)
+    z = _solve(sys, _factor(sys), rhs)
+    return _owned_to_free(mech, plan, z[:, :3 * no].reshape(n_bodies, no, 3))
+
+
+def chain_project(mech: Mechanism, plan: ChainPlan, x, xd, *, mass_blocks: Array | None = None):
+    """The mass-orthogonal projection of :mod:`.integrate` along the chain: ``[[M, J^T], [J, 0]] [dx; mu] =
+    [0; -Phi]`` solved with one block factorisation (O(N)), two position passes, then two velocity passes."""
+    n_bodies = len(plan.idx)
+    no = len(plan.owned)
+    mb = chain_mass_blocks(mech) if mass_blocks is None else mass_blocks
+    sys = _system(mech, plan, mb, x)
+    dinv = _factor(sys)
+    ra, rb = _row_pairs(plan)
+    kappa = mech.dot_kappa[np.asarray(plan.row_index)]  # (N, R)
+    zeros = jnp.zeros((n_bodies, 3 * no), dtype=x.dtype)
+
+    def correction(row_rhs):
+        z = _solve(sys, dinv, jnp.concatenate([zeros, row_rhs], axis=1))
+        return _owned_to_free(mech, plan, z[:, :3 * no].reshape(n_bodies, no, 3))
+
+    d = sys.d
+    for _ in range(2):
+        phi = 0.5 * jnp.sum(d * d, axis=-1) - kappa
+        x = x + correction(-phi)
+        r = mech.all_positions(x)[np.asarray(plan.idx)]
+        d = r[:, ra] - r[:, rb]
+    for _ in range(2):
+        v = _velocities(mech, plan, xd)
+        xd = xd + correction(-jnp.sum(d * (v[:, ra] - v[:, rb]), axis=-1))
+    return x, xd

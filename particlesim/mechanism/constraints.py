@@ -1,19 +1,22 @@
-"""Constraint equations of a mechanism in particle coordinates and their derivatives.
+"""Constraint equations of a mechanism in particle coordinates, their Jacobian and ``gamma``, by row kind.
 
-Rows, in order:
+Points (particles and points fixed to bodies) are affine in the particle positions, ``p_k = sum_t w_kt r_t``
+(:func:`point_weights`), so with ``P`` the point positions and ``V`` their velocities each row kind has a closed
+form (one vectorised kernel per kind, whatever the number of rows):
 
-1. distances ``(|r_i - r_j|^2 - d^2) / 2 = 0``: the rigid distances inside every body (Attia eqs. (11)–(16)) and
-   massless links;
-2. coincidences ``r_a - r_b = 0``: cut joints that close loops (Attia §2.4, the quarter car's ``r7 = r10``);
-3. rows on *points* (particles or points fixed to bodies), in declaration order: massless links between points,
-   cut joints involving a body point, a particle kept on a body's line (two rows: a revolute joint's second
-   axis particle on the other body's axis), and prismatic joints, five rows each: both axis points of body B
-   stay on body A's axis (two components perpendicular to it for each) and a third point of B keeps its angle
-   about the axis. The prismatic rows are an independent set equivalent to Attia eqs. (44a)–(44c), whose
-   cross-product form has redundant rows.
+=============  ==========================================  =====================================  ==========================
+kind           residual                                    d/dp of slots (a, b, c, d)             ``gamma = -d2/dt2 | xdd=0``
+=============  ==========================================  =====================================  ==========================
+dot            ``s (p_a - p_b).(p_c - p_d) - kappa``       ``s u, -s u, s v, -s v``               ``-2 s (V_a - V_b).(V_c - V_d)``
+linear         ``e . (p_a - p_b)``                         ``e, -e``                              ``0``
+=============  ==========================================  =====================================  ==========================
 
-The acceleration-level form is ``J(x) xdd = gamma(x, xd)`` with ``gamma = -(d/dx (J xd)) xd``, obtained by forward
-differentiation twice (no constraint has explicit time dependence).
+with ``u = p_c - p_d`` and ``v = p_a - p_b``. The Jacobian w.r.t. the free coordinates follows by the point
+weights: ``J[row, f] = sum_slots block(slot) W[point(slot), f]`` with ``W`` (K, F) the point-to-free-particle
+weights, which depend on parameters only (computed once per parameter set, :class:`~.dynamics.Prepared`).
+
+Row order: all dot rows (body distances, then joint rows in declaration order), then all linear rows.
+The acceleration-level form is ``J(x) xdd = gamma(x, xd)``; no row depends on time explicitly.
 """
 
 from __future__ import annotations
@@ -23,125 +26,157 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .model import Mechanism
+from .model import Mechanism, Topology
 
-__all__ = ["constraints", "constraint_jacobian", "constraint_gamma", "constraint_labels", "velocity_constraints"]
-
-
-def _perp_frame(a0, a1, a2):
-    u = a1 - a0
-    u = u / jnp.linalg.norm(u)
-    w = a2 - a0
-    n1 = w - jnp.dot(w, u) * u
-    n1 = n1 / jnp.linalg.norm(n1)
-    return u, n1, jnp.cross(u, n1)
+__all__ = ["point_weights", "point_free_weights", "constraints", "constraint_jacobian", "constraint_gamma",
+           "constraint_labels", "velocity_constraints", "row_blocks", "row_incidence"]
 
 
-def _generic_rows(mech: Mechanism, allp, spec) -> Array:
-    kind, pts, _, k = spec
+def point_weights(mech: Mechanism) -> Float[Array, "K 4"]:
+    """Affine weights of every point on its (up to four) particles (:meth:`Topology.point_slots`).
 
-    def p(i):
-        return allp[i]
+    A particle point has weight 1 on itself. A point of a spatial body solves ``[R^T; 1^T] w = [p; 1]`` (``R`` the
+    body-frame primaries, 4 x 4); of a planar body the same system in least squares (the point lies in the plane,
+    checked at build); of a rod ``w = (1 - s, s)`` with ``s`` its fraction along the rod.
+    """
+    topo = mech.topo
+    w = np.zeros((len(topo.point_names), 4))
+    w[:, 0] = 1.0
+    w = jnp.asarray(w, dtype=mech.point_local.dtype)
+    for n in (4, 3, 2):
+        ids = [k for k, b in enumerate(topo.point_body) if b >= 0 and len(topo.body_particles[b]) == n]
+        if not ids:
+            continue
+        bodies = np.asarray([topo.point_body[k] for k in ids])
+        prim = mech.body_primaries[bodies][:, :n]  # (m, n, 3)
+        loc = mech.point_local[np.asarray(ids)]  # (m, 3)
+        if n == 2:
+            e = prim[:, 1] - prim[:, 0]
+            s = jnp.sum((loc - prim[:, 0]) * e, axis=1) / jnp.sum(e * e, axis=1)
+            wk = jnp.stack([1.0 - s, s], axis=1)
+        else:
+            a = jnp.concatenate([jnp.swapaxes(prim, 1, 2), jnp.ones((len(ids), 1, n))], axis=1)  # (m, 4, n)
+            rhs = jnp.concatenate([loc, jnp.ones((len(ids), 1))], axis=1)  # (m, 4)
+            if n == 3:
+                rhs = jnp.einsum("mij,mi->mj", a, rhs)
+                a = jnp.einsum("mij,mik->mjk", a, a)
+            wk = jnp.linalg.solve(a, rhs[..., None])[..., 0]
+        w = w.at[np.asarray(ids), :n].set(wk).at[np.asarray(ids), n:].set(0.0)
+    return w
 
-    if kind == "link":
-        d = p(pts[0]) - p(pts[1])
-        return (0.5 * (d @ d - mech.point_lengths[k] ** 2))[None]
-    if kind == "coincide":
-        return p(pts[0]) - p(pts[1])
-    if kind == "on_line":
-        b, o, d0, d1, ref = (p(i) for i in pts)
-        _, n1, n2 = _perp_frame(d0, d1, ref)
-        return jnp.stack([n1 @ (b - o), n2 @ (b - o)])
-    a0, a1, a2, b0, b1, b2 = (p(i) for i in pts)  # prismatic
-    _, n1, n2 = _perp_frame(a0, a1, a2)
-    e0, e1 = b0 - a0, b1 - a0
-    return jnp.stack([n1 @ e0, n2 @ e0, n1 @ e1, n2 @ e1, n1 @ (b2 - b0) - mech.offsets[k]])
+
+def point_free_weights(topo: Topology, w: Float[Array, "K 4"]) -> Float[Array, "K F"]:
+    """``W[k, f] = d p_k / d r_f`` (a scalar: the weight of free particle ``f`` in point ``k``)."""
+    cols = topo.free_column()[topo.point_slots()]  # (K, 4): free column of each slot, -1 for ground particles
+    onehot = (cols[..., None] == np.arange(len(topo.free))[None, None, :]).astype(float)  # (K, 4, F)
+    return jnp.einsum("kt,ktf->kf", w, onehot)
 
 
-def _generic_all(mech: Mechanism, r) -> Array:
-    allp = mech.point_positions(r)
-    return jnp.concatenate([_generic_rows(mech, allp, spec) for spec in mech.generic])
+def row_incidence(topo: Topology, wk: Float[Array, "K F"]) -> tuple[Array, Array]:
+    """``(G_dot (D, 4, F), G_lin (L, 2, F))``: the point-to-free weights of every slot of every row."""
+    return wk[topo.dot.slots], wk[topo.linear.slots]
+
+
+def points(topo: Topology, w: Float[Array, "K 4"], r: Float[Array, "P 3"]) -> Float[Array, "K 3"]:
+    """Point positions (or velocities, with particle velocities ``r``)."""
+    return jnp.einsum("kt,ktj->kj", w, r[topo.point_slots()])
+
+
+def _dot_geometry(topo: Topology, p):
+    rows = topo.dot
+    u = p[np.asarray(rows.c, dtype=int)] - p[np.asarray(rows.d, dtype=int)]
+    v = p[np.asarray(rows.a, dtype=int)] - p[np.asarray(rows.b, dtype=int)]
+    return v, u, jnp.asarray(rows.scale, dtype=p.dtype)
+
+
+def row_residuals(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, " C"]:
+    """All constraint residuals from the point positions."""
+    topo = mech.topo
+    out = []
+    if len(topo.dot):
+        v, u, s = _dot_geometry(topo, pts)
+        out.append(s * jnp.sum(v * u, axis=1) - mech.dot_kappa)
+    if len(topo.linear):
+        rows = topo.linear
+        d = pts[np.asarray(rows.a, dtype=int)] - pts[np.asarray(rows.b, dtype=int)]
+        out.append(jnp.sum(jnp.asarray(rows.axis, dtype=pts.dtype) * d, axis=1))
+    if not out:
+        return jnp.zeros((0,), dtype=pts.dtype)
+    return jnp.concatenate(out)
+
+
+def row_blocks(topo: Topology, pts: Float[Array, "K 3"]) -> Float[Array, "D 4 3"]:
+    """``d residual / d p`` of every slot of every dot row (the linear rows' blocks are constant, ``+-e``)."""
+    v, u, s = _dot_geometry(topo, pts)
+    su, sv = s[:, None] * u, s[:, None] * v
+    return jnp.stack([su, -su, sv, -sv], axis=1)
+
+
+def linear_blocks(topo: Topology) -> np.ndarray:
+    e = np.asarray(topo.linear.axis, dtype=float).reshape(-1, 3)
+    return np.stack([e, -e], axis=1)  # (L, 2, 3)
+
+
+def row_gamma(topo: Topology, vel: Float[Array, "K 3"]) -> Float[Array, " C"]:
+    """``gamma`` of every row from the point velocities (affine points have no velocity-squared terms)."""
+    out = []
+    if len(topo.dot):
+        dv, du, s = _dot_geometry(topo, vel)
+        out.append(-2.0 * s * jnp.sum(dv * du, axis=1))
+    if len(topo.linear):
+        out.append(jnp.zeros((len(topo.linear),), dtype=vel.dtype))
+    if not out:
+        return jnp.zeros((0,), dtype=vel.dtype)
+    return jnp.concatenate(out)
+
+
+def jacobian_from_blocks(blocks: Array, g_dot: Array, j_lin: Array) -> Float[Array, "C F 3"]:
+    """``J`` as ``(C, F, 3)`` from the dot-row blocks, their incidence and the constant linear rows."""
+    parts = []
+    if blocks.shape[0]:
+        # A broadcast product summed over the slots (one fused kernel; a batched matmul of 4 x 3 blocks is not).
+        parts.append(jnp.sum(blocks[:, :, None, :] * g_dot[:, :, :, None], axis=1))
+    if j_lin.shape[0]:
+        parts.append(j_lin)
+    if not parts:
+        return jnp.zeros((0, g_dot.shape[-1], 3))
+    return jnp.concatenate(parts, axis=0)
+
+
+def linear_jacobian(topo: Topology, g_lin: Array) -> Float[Array, "L F 3"]:
+    return jnp.sum(jnp.asarray(linear_blocks(topo))[:, :, None, :] * g_lin[:, :, :, None], axis=1)
+
+
+# ---- public functions of (mech, x): convenient, recompute the point weights on every call ----
+
+def _state(mech: Mechanism, x, xd=None):
+    w = point_weights(mech)
+    pts = points(mech.topo, w, mech.all_positions(x))
+    if xd is None:
+        return w, pts
+    col = mech.topo.free_column()
+    vel_all = jnp.where(jnp.asarray(col >= 0)[:, None], mech.all_positions(xd), 0.0)
+    return w, pts, points(mech.topo, w, vel_all)
 
 
 def constraints(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " C"]:
     """All constraint residuals at ``x`` (zero on the constraint manifold)."""
-    r = mech.all_positions(x)
-    rows = []
-    if mech.distance_pairs:
-        i = np.asarray([p[0] for p in mech.distance_pairs])
-        j = np.asarray([p[1] for p in mech.distance_pairs])
-        d = r[i] - r[j]
-        rows.append(0.5 * (jnp.sum(d * d, axis=1) - mech.lengths**2))
-    if mech.coincide_pairs:
-        i = np.asarray([p[0] for p in mech.coincide_pairs])
-        j = np.asarray([p[1] for p in mech.coincide_pairs])
-        rows.append((r[i] - r[j]).reshape(-1))
-    if mech.generic:
-        rows.append(_generic_all(mech, r))
-    if not rows:
-        return jnp.zeros((0,), dtype=x.dtype)
-    return jnp.concatenate(rows)
+    return row_residuals(mech, _state(mech, x)[1])
 
 
 def constraint_labels(mech: Mechanism) -> list[str]:
     """A readable label per constraint row (for error messages and residual reports)."""
-    out = [p[2] for p in mech.distance_pairs]
-    for p in mech.coincide_pairs:
-        out += [f"{p[2]} ({c})" for c in "xyz"]
-    parts = {"link": ("",), "coincide": ("x", "y", "z"), "on_line": ("n1", "n2"),
-             "prismatic": ("axis 1a", "axis 1b", "axis 2a", "axis 2b", "rotation")}
-    for kind, _, label, _ in mech.generic:
-        out += [f"{label} ({c})" if c else label for c in parts[kind]]
-    return out
-
-
-def _pair_index(pairs):
-    return np.asarray([p[0] for p in pairs], dtype=int), np.asarray([p[1] for p in pairs], dtype=int)
-
-
-def _free_columns(mech: Mechanism) -> np.ndarray:
-    """For every particle, the column of its x-coordinate in ``x`` (-1 for ground particles)."""
-    col = -np.ones(len(mech.particle_names), dtype=int)
-    col[np.asarray(mech.free, dtype=int)] = 3 * np.arange(len(mech.free))
-    return col
-
-
-def _scatter_rows(rows: int, parts, n_coords: int) -> Array:
-    """Assemble ``(R, n_coords)`` from per-row 3-blocks ``parts = [(particle_cols, blocks (R, 3)), ...]``, in one
-    scatter; ground particles (column -1) are dropped."""
-    r_idx, c_idx, vals = [], [], []
-    for cols, block in parts:
-        keep = np.flatnonzero(cols >= 0)
-        if keep.size == 0:
-            continue
-        r_idx.append(np.repeat(keep, 3))
-        c_idx.append((cols[keep][:, None] + np.arange(3)[None, :]).reshape(-1))
-        vals.append(block[keep].reshape(-1))
-    out = jnp.zeros((rows, n_coords))
-    if not vals:
-        return out
-    return out.at[np.concatenate(r_idx), np.concatenate(c_idx)].add(jnp.concatenate(vals))
+    return mech.topo.row_labels()
 
 
 def constraint_jacobian(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, "C 3F"]:
-    """``J = d constraints / dx``: closed form for distances and coincidences, forward-mode for point rows."""
-    r = mech.all_positions(x)
-    col = _free_columns(mech)
-    n = mech.n_coords
-    blocks = []
-    if mech.distance_pairs:
-        i, j = _pair_index(mech.distance_pairs)
-        d = r[i] - r[j]
-        blocks.append(_scatter_rows(len(i), [(col[i], d), (col[j], -d)], n))
-    if mech.coincide_pairs:
-        i, j = _pair_index(mech.coincide_pairs)
-        eye = jnp.tile(jnp.eye(3), (len(i), 1))
-        blocks.append(_scatter_rows(3 * len(i), [(np.repeat(col[i], 3), eye), (np.repeat(col[j], 3), -eye)], n))
-    if mech.generic:
-        blocks.append(jax.jacfwd(lambda y: _generic_all(mech, mech.all_positions(y)))(x))
-    if not blocks:
-        return jnp.zeros((0, n), dtype=x.dtype)
-    return jnp.concatenate(blocks, axis=0)
+    """``J = d constraints / dx`` in closed form, ``(C, 3F)``."""
+    topo = mech.topo
+    w, pts = _state(mech, x)
+    g_dot, g_lin = row_incidence(topo, point_free_weights(topo, w))
+    blocks = row_blocks(topo, pts) if len(topo.dot) else jnp.zeros((0, 4, 3))
+    j = jacobian_from_blocks(blocks, g_dot, linear_jacobian(topo, g_lin))
+    return j.reshape(j.shape[0], -1)
 
 
 def velocity_constraints(mech: Mechanism, x, xd) -> Float[Array, " C"]:
@@ -150,21 +185,5 @@ def velocity_constraints(mech: Mechanism, x, xd) -> Float[Array, " C"]:
 
 
 def constraint_gamma(mech: Mechanism, x, xd) -> Float[Array, " C"]:
-    """Right-hand side of ``J xdd = gamma``: ``gamma = -xd^T (d^2 constraints / dx^2) xd`` (closed form for
-    distances, ``-|v_i - v_j|^2``; zero for coincidences; forward-mode twice for point rows)."""
-    v = mech.all_positions(xd) * jnp.asarray(_free_columns(mech) >= 0, dtype=xd.dtype)[:, None]
-    parts = []
-    if mech.distance_pairs:
-        i, j = _pair_index(mech.distance_pairs)
-        dv = v[i] - v[j]
-        parts.append(-jnp.sum(dv * dv, axis=1))
-    if mech.coincide_pairs:
-        parts.append(jnp.zeros(3 * len(mech.coincide_pairs), dtype=x.dtype))
-    if mech.generic:
-        def rows(y):
-            return _generic_all(mech, mech.all_positions(y))
-
-        parts.append(-jax.jvp(lambda y: jax.jvp(rows, (y,), (xd,))[1], (x,), (xd,))[1])
-    if not parts:
-        return jnp.zeros((0,), dtype=x.dtype)
-    return jnp.concatenate(parts)
+    """Right-hand side of ``J xdd = gamma``: ``gamma = -xd^T (d^2 constraints / dx^2) xd`` (closed form)."""
+    return row_gamma(mech.topo, _state(mech, x, xd)[2])

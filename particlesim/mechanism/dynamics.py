@@ -1,71 +1,126 @@
 """Equations of motion of a mechanism in particle coordinates, and their acceleration-level solve.
 
 With the secondary particles eliminated (Attia eqs. (23)–(27)), the particles' kinetic energy is
-``T = 1/2 xd^T M xd`` with a *constant* mass matrix ``M`` (:meth:`Mechanism.mass_matrix`). D'Alembert's principle
-with the constraints ``Phi(x) = 0`` (:mod:`.constraints`) gives
+``T = 1/2 xd^T M xd`` with a *constant* mass matrix ``M = M_s (x) I_3`` (``M_s`` the sum of the bodies' primary mass
+matrices, :func:`~particlesim.particles.primary_mass_matrix`). D'Alembert's principle with the constraints
+``Phi(x) = 0`` (:mod:`.constraints`) gives
 
     M xdd + J^T lam = Q(t, x, xd),      J xdd = gamma(x, xd)
 
 The force and moment equations of Attia (9)–(10) and (23)–(24) are this system's rows projected on the rigid
 motions of each body: the internal distance forces cancel pairwise and the reactions of a joint particle have no
-moment about it. Solving the full saddle-point system gives the same accelerations (and the multipliers ``lam``
-are the constraint forces). :func:`accelerations` solves it densely; it is the reference for every mechanism,
-open or closed.
+moment about it. The multipliers ``lam`` are the constraint forces.
+
+Solve (``M`` is constant, so everything that depends on parameters only is computed once per parameter set, in
+:class:`Prepared`): with ``W = M_s^-1``, eliminate the accelerations,
+
+    S lam = J M^-1 Q - gamma,   S = J M^-1 J^T (C x C, symmetric positive definite),   xdd = M^-1 (Q - J^T lam)
+
+by one Cholesky factorisation of ``S`` per evaluation; :mod:`._algebra` arranges ``S``, ``J y`` and ``M^-1 J^T lam``
+as a few small dense products with constants of the parameter set, and gravity's ``M^-1 Q_g`` is one of them. When ``M_s`` is singular
+(a free particle carried by no body, e.g. the joint of two massless links) the full saddle-point system is solved
+instead (:func:`accelerations_kkt`, LU), the reference for every mechanism.
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, Float
 
-from .constraints import constraint_gamma, constraint_jacobian, constraints, velocity_constraints
-from .forces import generalized_forces, potential_energy
+from ._algebra import Prepared, apply_j, apply_minv_jt, gamma, jacobian, prepare, residual, rows, schur
+from ._algebra import scalar_mass_matrix  # noqa: F401  (re-exported for Mechanism.scalar_mass_matrix)
+from .forces import generalized_point_forces, point_forces, potential_energy, torque_forces
 from .model import Mechanism
 
-__all__ = ["mass_properties", "accelerations", "accelerations_and_multipliers", "kinetic_energy", "total_energy", "residuals"]
+__all__ = ["Prepared", "prepare", "mass_properties", "accelerations", "accelerations_and_multipliers",
+           "kinetic_energy", "total_energy", "residuals"]
 
 
-def mass_properties(mech: Mechanism) -> tuple[Array, Array]:
-    """``(M, m_bar)``: the constant mass matrix of the free coordinates and the lumped particle masses. They
-    depend on the parameters only, so a simulation computes them once (pass them as ``props``)."""
-    return mech.mass_matrix(), mech.lumped_masses()
+def mass_properties(mech: Mechanism) -> Prepared:
+    """The parameter-only quantities (mass matrix, its inverse, the rows' constant parts); pass them as ``props``
+    to the functions of this module to compute them once for many states."""
+    return prepare(mech)
 
 
-def accelerations_and_multipliers(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"],
-                                  *, baumgarte: float = 0.0, props=None) -> tuple[Array, Array]:
-    """Solve the saddle-point system for ``(xdd, lam)``; ``props`` as from :func:`mass_properties`.
+def _forces(mech: Mechanism, prep: Prepared, t, x, xd):
+    """Point forces ``(K, 3)`` (or None) and torque generalised forces ``(3F,)`` (or None)."""
+    topo = mech.topo
+    f_pts = None
+    if topo.spring_names or topo.tyre_names or any(ap.kind == "force" for ap in mech.applied):
+        pts = prep.wk @ x.reshape(-1, 3) + prep.p0
+        vel = prep.wk @ xd.reshape(-1, 3)
+        f_pts = point_forces(mech, t, x, xd, pts, vel)
+    return f_pts, torque_forces(mech, t, x, xd)
+
+
+def _solve(mech: Mechanism, prep: Prepared, t, x, xd, baumgarte: float):
+    r = rows(prep, x, xd)
+    g = gamma(prep, r)
+    if baumgarte:
+        g = g - 2.0 * baumgarte * apply_j(prep, r, xd.reshape(-1, 3)) - baumgarte**2 * residual(
+            prep, mech.dot_kappa, r, x)
+    f_pts, q_torque = _forces(mech, prep, t, x, xd)
+    if mech.topo.saddle_point:
+        return _solve_kkt(prep, r, g, f_pts, q_torque)
+    minv_q = prep.minv_qg
+    if f_pts is not None:
+        minv_q = minv_q + prep.mwk @ f_pts
+    if q_torque is not None:
+        minv_q = minv_q + prep.minv @ q_torque.reshape(-1, 3)
+    if g.shape[0] == 0:
+        return minv_q.reshape(-1), g
+    lam = cho_solve(cho_factor(schur(prep, r)), apply_j(prep, r, minv_q) - g)
+    return (minv_q - apply_minv_jt(prep, r, lam)).reshape(-1), lam
+
+
+def _solve_kkt(prep: Prepared, r, g, f_pts, q_torque):
+    """The full saddle-point system by LU (any mechanism, ``M`` singular included)."""
+    q = prep.qg.reshape(-1)
+    if f_pts is not None:
+        q = q + generalized_point_forces(prep.wk, f_pts)
+    if q_torque is not None:
+        q = q + q_torque
+    j = jacobian(prep, r)
+    j = j.reshape(j.shape[0], -1)
+    m = jnp.kron(prep.ms, jnp.eye(3, dtype=prep.ms.dtype))
+    n, c = m.shape[0], j.shape[0]
+    kkt = jnp.block([[m, j.T], [j, jnp.zeros((c, c), dtype=m.dtype)]])
+    sol = jnp.linalg.solve(kkt, jnp.concatenate([q, g]))
+    return sol[:n], sol[n:]
+
+
+def accelerations_and_multipliers(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"], *,
+                                  baumgarte: float = 0.0, props: Prepared | None = None) -> tuple[Array, Array]:
+    """Solve for ``(xdd, lam)``; ``props`` as from :func:`mass_properties` (computed here if not given).
 
     ``baumgarte`` (a rate ``a`` in 1/s, default 0) adds ``-2 a J xd - a^2 Phi`` to ``gamma`` so that drift decays
     critically damped; with the per-step projection of :func:`~particlesim.mechanism.simulate_mechanism` it is not
     needed.
     """
-    m, lumped = mass_properties(mech) if props is None else props
-    j = constraint_jacobian(mech, x)
-    gamma = constraint_gamma(mech, x, xd)
-    if baumgarte:
-        gamma = gamma - 2.0 * baumgarte * velocity_constraints(mech, x, xd) - baumgarte**2 * constraints(mech, x)
-    q = generalized_forces(mech, t, x, xd, lumped=lumped)
-    n, c = m.shape[0], j.shape[0]
-    kkt = jnp.block([[m, j.T], [j, jnp.zeros((c, c), dtype=m.dtype)]])
-    sol = jnp.linalg.solve(kkt, jnp.concatenate([q, gamma]))
-    return sol[:n], sol[n:]
+    prep = prepare(mech) if props is None else props
+    return _solve(mech, prep, t, x, xd, baumgarte)
 
 
 def accelerations(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"], *,
-                  baumgarte: float = 0.0, props=None) -> Float[Array, " 3F"]:
+                  baumgarte: float = 0.0, props: Prepared | None = None) -> Float[Array, " 3F"]:
     """Particle accelerations ``xdd`` (see :func:`accelerations_and_multipliers`)."""
     return accelerations_and_multipliers(mech, t, x, xd, baumgarte=baumgarte, props=props)[0]
 
 
-def kinetic_energy(mech: Mechanism, xd: Float[Array, " 3F"]) -> Float[Array, ""]:
+def kinetic_energy(mech: Mechanism, xd: Float[Array, " 3F"], *, props: Prepared | None = None) -> Float[Array, ""]:
     """``1/2 xd^T M xd``: equal to the bodies' rigid kinetic energy for admissible velocities."""
-    return 0.5 * xd @ mech.mass_matrix() @ xd
+    ms = prepare(mech).ms if props is None else props.ms
+    v = xd.reshape(-1, 3)
+    return 0.5 * jnp.sum(v * (ms @ v))
 
 
-def total_energy(mech: Mechanism, x, xd) -> Float[Array, ""]:
-    return kinetic_energy(mech, xd) + potential_energy(mech, x)
+def total_energy(mech: Mechanism, x, xd, *, props: Prepared | None = None) -> Float[Array, ""]:
+    return kinetic_energy(mech, xd, props=props) + potential_energy(mech, x)
 
 
 def residuals(mech: Mechanism, x, xd) -> tuple[Array, Array]:
     """Position- and velocity-level constraint residuals ``(Phi(x), J xd)``."""
+    from .constraints import constraints, velocity_constraints
+
     return constraints(mech, x), velocity_constraints(mech, x, xd)

@@ -1,9 +1,10 @@
 """Generalised forces on the free particle coordinates, and the potential energies that go with them.
 
-Every force element contributes ``Q = (d p / d x)^T f`` (virtual work) for the point ``p`` it acts on, so forces
-need not be redistributed over particles by hand (Attia's reason for the moment equations; here autodiff plays
-that role exactly). Gravity acts on every particle with its lumped mass ``m_bar`` (Attia eq. (25)). A scene
-without springs, tyres or applied loads pays nothing for them: each loop below is empty at trace time.
+Every force element acts at a point ``p = sum_t w_t r_t`` (:mod:`.constraints`), so its generalised force is
+``Q_f = sum_k W[k, f] F_k`` (virtual work; ``W`` the point-to-free-particle weights): forces need not be
+redistributed over particles by hand (Attia's reason for the moment equations). Gravity acts on every particle with
+its lumped mass ``m_bar`` (Attia eq. (25)) and is a constant of the parameter set. A scene without springs, tyres or
+applied loads pays nothing for them: each part below is skipped at trace time.
 """
 
 from __future__ import annotations
@@ -16,21 +17,26 @@ from jaxtyping import Array, Float
 from ..spatial import frame_from_points, unskew
 from .model import Mechanism
 
-__all__ = ["generalized_forces", "potential_energy", "spring_lengths", "body_angular_velocity"]
+__all__ = ["generalized_forces", "point_forces", "generalized_point_forces", "torque_forces", "potential_energy",
+           "spring_lengths", "body_angular_velocity"]
 
 
-def _point(mech: Mechanism, k: int):
-    return lambda x: mech.point_positions(mech.all_positions(x))[k]
+def _pts(mech: Mechanism, x):
+    from .constraints import point_weights, points
+
+    return points(mech.topo, point_weights(mech), mech.all_positions(x))
 
 
 def spring_lengths(mech: Mechanism, x) -> Float[Array, " S"]:
     """Current length of every spring-damper."""
-    return jnp.stack([jnp.linalg.norm(_point(mech, s.a)(x) - _point(mech, s.b)(x)) for s in mech.springs])
+    p = _pts(mech, x)
+    ab = np.asarray(mech.topo.spring_points, dtype=int).reshape(-1, 2)
+    return jnp.linalg.norm(p[ab[:, 0]] - p[ab[:, 1]], axis=1)
 
 
 def body_angular_velocity(mech: Mechanism, b: int, x, xd) -> Float[Array, "3"]:
     """Angular velocity of a (spatial or planar) body from its first three primaries: ``unskew(F' F^T)``."""
-    idx = np.asarray(mech.bodies[b].primaries)
+    idx = np.asarray(mech.topo.body_particles[b])
 
     def frame(y):
         p = mech.all_positions(y)[idx]
@@ -40,61 +46,84 @@ def body_angular_velocity(mech: Mechanism, b: int, x, xd) -> Float[Array, "3"]:
     return unskew(fd @ f.T)
 
 
-def _points_fn(mech: Mechanism):
-    return lambda y: mech.point_positions(mech.all_positions(y))
+def point_forces(mech: Mechanism, t, x, xd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"]):
+    """Cartesian force on every point from springs, tyres and applied forces, ``(K, 3)``; ``None`` if the
+    mechanism has none of them."""
+    topo = mech.topo
+    forces_applied = [ap for ap in mech.applied if ap.kind == "force"]
+    if not (topo.spring_names or topo.tyre_names or forces_applied):
+        return None
+    f_pts = jnp.zeros_like(pts)
+    if topo.spring_names:
+        ab = np.asarray(topo.spring_points, dtype=int)
+        a, b = ab[:, 0], ab[:, 1]
+        d = pts[a] - pts[b]
+        ell = jnp.linalg.norm(d, axis=1)
+        u = d / ell[:, None]
+        f = mech.spring_stiffness * (ell - mech.spring_free_length) + \
+            mech.spring_damping * jnp.sum(u * (vel[a] - vel[b]), axis=1)
+        f_pts = f_pts.at[a].add(-f[:, None] * u).at[b].add(f[:, None] * u)
+    if topo.tyre_names:
+        k = np.asarray(topo.tyre_points, dtype=int)
+        n = jnp.asarray(topo.tyre_normals, dtype=pts.dtype)
+        dist = jnp.sum(pts[k] * n, axis=1) - mech.tyre_ground - mech.tyre_radius
+        f = jnp.where(dist < 0.0, -(mech.tyre_stiffness * dist + mech.tyre_damping * jnp.sum(vel[k] * n, axis=1)),
+                      0.0)
+        f_pts = f_pts.at[k].add(f[:, None] * n)
+    for ap in forces_applied:
+        f_pts = f_pts.at[ap.target].add(ap.fn(t, x, xd))
+    return f_pts
+
+
+def generalized_point_forces(wk: Float[Array, "K F"], f_pts: Float[Array, "K 3"]) -> Float[Array, " 3F"]:
+    """``Q = W^T F`` flattened to the free coordinates."""
+    return (wk.T @ f_pts).reshape(-1)
+
+
+def torque_forces(mech: Mechanism, t, x, xd):
+    """Generalised forces ``(3F,)`` of the applied torques (virtual power ``tau . omega``); ``None`` if none."""
+    torques = [ap for ap in mech.applied if ap.kind == "torque"]
+    if not torques:
+        return None
+    q = jnp.zeros_like(x)
+    for ap in torques:
+        _, pull = jax.vjp(lambda v, b=ap.target: body_angular_velocity(mech, b, x, v), xd)
+        q = q + pull(ap.fn(t, x, xd))[0]
+    return q
 
 
 def generalized_forces(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"], *,
                        lumped=None) -> Float[Array, " 3F"]:
-    """Gravity + spring-dampers + tyres + applied forces and torques, as forces on the free coordinates.
+    """Gravity + spring-dampers + tyres + applied forces and torques, as forces on the free coordinates."""
+    from .constraints import point_free_weights, point_weights, points
 
-    Point positions and velocities are evaluated once (one forward-mode pass), the Cartesian forces of all
-    elements are summed per point, and one reverse-mode pass maps them to the coordinates (``Q = (dP/dx)^T F``).
-    ``lumped``: the particle masses ``m_bar`` if already computed (:func:`~.dynamics.mass_properties`)."""
-    free = np.asarray(mech.free, dtype=int)
+    topo = mech.topo
+    free = np.asarray(topo.free, dtype=int)
     lumped = mech.lumped_masses() if lumped is None else lumped
     q = (lumped[free][:, None] * mech.gravity[None, :]).reshape(-1)
-    point_elements = mech.springs or mech.tyres or any(ap.kind == "force" for ap in mech.applied)
-    if point_elements:
-        fn = _points_fn(mech)
-        pts, vel = jax.jvp(fn, (x,), (xd,))
-        f_pts = jnp.zeros_like(pts)
-        if mech.springs:
-            a = np.asarray([s.a for s in mech.springs])
-            b = np.asarray([s.b for s in mech.springs])
-            k = jnp.stack([s.stiffness for s in mech.springs])
-            c = jnp.stack([s.damping for s in mech.springs])
-            l0 = jnp.stack([s.free_length for s in mech.springs])
-            d = pts[a] - pts[b]
-            ell = jnp.linalg.norm(d, axis=1)
-            u = d / ell[:, None]
-            f = k * (ell - l0) + c * jnp.sum(u * (vel[a] - vel[b]), axis=1)
-            f_pts = f_pts.at[a].add(-f[:, None] * u).at[b].add(f[:, None] * u)
-        for ty in mech.tyres:
-            n = jnp.asarray(ty.normal)
-            dist = pts[ty.point] @ n - ty.ground - ty.radius
-            f = jnp.where(dist < 0.0, -(ty.stiffness * dist + ty.damping * (vel[ty.point] @ n)), 0.0)
-            f_pts = f_pts.at[ty.point].add(f * n)
-        for ap in mech.applied:
-            if ap.kind == "force":
-                f_pts = f_pts.at[ap.target].add(ap.fn(t, x, xd))
-        _, pull = jax.vjp(fn, x)
-        q = q + pull(f_pts)[0]
-    for ap in mech.applied:
-        if ap.kind == "torque":
-            _, pull = jax.vjp(lambda v, b=ap.target: body_angular_velocity(mech, b, x, v), xd)
-            q = q + pull(ap.fn(t, x, xd))[0]
-    return q
+    w = point_weights(mech)
+    col = topo.free_column()
+    pts = points(topo, w, mech.all_positions(x))
+    vel = points(topo, w, jnp.where(jnp.asarray(col >= 0)[:, None], mech.all_positions(xd), 0.0))
+    f_pts = point_forces(mech, t, x, xd, pts, vel)
+    if f_pts is not None:
+        q = q + generalized_point_forces(point_free_weights(topo, w), f_pts)
+    q_t = torque_forces(mech, t, x, xd)
+    return q if q_t is None else q + q_t
 
 
 def potential_energy(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, ""]:
     """Gravity, spring and (compressed) tyre energy; dampers and applied loads have none."""
+    topo = mech.topo
     r = mech.all_positions(x)
     u = -jnp.sum(mech.lumped_masses() * (r @ mech.gravity))
-    for s in mech.springs:
-        ell = jnp.linalg.norm(_point(mech, s.a)(x) - _point(mech, s.b)(x))
-        u = u + 0.5 * s.stiffness * (ell - s.free_length) ** 2
-    for ty in mech.tyres:
-        d = _point(mech, ty.point)(x) @ jnp.asarray(ty.normal) - ty.ground - ty.radius
-        u = u + jnp.where(d < 0.0, 0.5 * ty.stiffness * d**2, 0.0)
+    if topo.spring_names or topo.tyre_names:
+        p = _pts(mech, x)
+    if topo.spring_names:
+        ell = spring_lengths(mech, x)
+        u = u + jnp.sum(0.5 * mech.spring_stiffness * (ell - mech.spring_free_length) ** 2)
+    if topo.tyre_names:
+        k = np.asarray(topo.tyre_points, dtype=int)
+        d = jnp.sum(p[k] * jnp.asarray(topo.tyre_normals), axis=1) - mech.tyre_ground - mech.tyre_radius
+        u = u + jnp.sum(jnp.where(d < 0.0, 0.5 * mech.tyre_stiffness * d**2, 0.0))
     return u

@@ -1,12 +1,16 @@
 """Integrating a mechanism: the acceleration-level equations plus a projection onto the constraints every step.
 
 Stabilisation scheme: *coordinate projection* (Hairer, Lubich & Wanner, Geometric Numerical Integration, §IV.4;
-Eich 1993). After every accepted or rejected step of any diffrax solver, positions are projected back onto
-``Phi(x) = 0`` by Gauss–Newton steps with the minimum-norm correction ``dx = -J^T (J J^T)^-1 Phi``, then
-velocities onto ``J xd = 0``. The projection leaves the method's order intact (the correction is of the size of
-the local error), needs no tuning constant (unlike Baumgarte's), and keeps the residuals at round-off, which the
-tests measure. Saved outputs are projected the same way. It is a smooth function of the state and parameters,
-so gradients pass through it.
+Eich 1993). After every step of any diffrax solver, positions are projected back onto ``Phi(x) = 0`` along the
+mass-orthogonal correction ``dx = -M^-1 J^T (J M^-1 J^T)^-1 Phi`` (the correction of least kinetic-energy norm),
+then velocities onto ``J xd = 0`` the same way. One Cholesky factorisation of ``S = J M^-1 J^T`` at the stepped
+state serves both: two simplified-Newton position iterations with that factor, then two velocity passes with
+``J`` at the projected positions (each pass contracts the residual by the size of the position correction, i.e.
+the local error, so two passes reach round-off, which the tests measure). The projection leaves the method's order
+intact (the correction is of the size of the local error), needs no tuning constant (unlike Baumgarte's), and is a
+smooth function of state and parameters, so gradients pass through it. Its iteration count is fixed rather than
+a tolerance-driven loop because a data-dependent loop cannot be differentiated in reverse mode. Saved outputs
+are projected the same way. Mechanisms whose mass matrix is singular project with ``J J^T`` instead.
 
 Adjoints: "checkpoint" (default), "direct" and "forward" differentiate the discrete computation, projections
 included. "backsolve" integrates the continuous adjoint equations of the vector field backwards in time; the
@@ -17,139 +21,116 @@ sensitivities of a different (unprojected) flow. It is therefore refused with ``
 
 from __future__ import annotations
 
-from typing import Callable
-
 import diffrax
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.scipy.linalg import cho_factor, cho_solve
 
-from ..simulate import IMPLICIT_SOLVERS, SOLVERS, Solution
-from .constraints import constraint_jacobian, constraints
-from .chain import chain_accelerations, chain_plan
-from .dynamics import accelerations, mass_properties
+from .. import _ode
+from .._ode import ADJOINTS, Solution
+from ..errors import ModelError
+from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_project
+from ._algebra import Prepared, apply_j, apply_minv_jt, jacobian, prepare, residual, rows, schur
+from .dynamics import _solve
 from .model import Mechanism
 
-__all__ = ["ADJOINTS", "ProjectedSolver", "project", "simulate_mechanism"]
+__all__ = ["ADJOINTS", "project", "simulate_mechanism"]
 
-_GN_ITERATIONS = 3
-
-#: Adjoints by name (the names :func:`particlesim.simulate.simulate` takes).
-ADJOINTS: dict[str, Callable[[], diffrax.AbstractAdjoint]] = {
-    "checkpoint": diffrax.RecursiveCheckpointAdjoint,
-    "direct": diffrax.DirectAdjoint,
-    "forward": diffrax.ForwardMode,
-    "backsolve": diffrax.BacksolveAdjoint,
-}
+_POSITION_ITERATIONS = 2
+_VELOCITY_PASSES = 2
 
 
-def project(mech: Mechanism, x, xd):
-    """Project ``(x, xd)`` onto ``Phi = 0`` and ``J xd = 0`` (minimum-norm corrections)."""
-    if not (mech.distance_pairs or mech.coincide_pairs or mech.generic):
+def _project_euclid(mech: Mechanism, prep: Prepared, x, xd):
+    """Minimum-norm (``J J^T``) projection for mechanisms with a singular mass matrix (LU, 3 Gauss–Newton steps)."""
+    for _ in range(3):
+        r = rows(prep, x)
+        j = jacobian(prep, r).reshape(mech.n_constraints, -1)
+        x = x - j.T @ jnp.linalg.solve(j @ j.T, residual(prep, mech.dot_kappa, r, x))
+    j = jacobian(prep, rows(prep, x)).reshape(mech.n_constraints, -1)
+    return x, xd - j.T @ jnp.linalg.solve(j @ j.T, j @ xd)
+
+
+def project_prepared(mech: Mechanism, prep: Prepared, x, xd):
+    """Project ``(x, xd)`` onto ``Phi = 0`` and ``J xd = 0`` (module docstring); ``prep`` from :func:`prepare`."""
+    if mech.n_constraints == 0:
         return x, xd
-    for _ in range(_GN_ITERATIONS):
-        j = constraint_jacobian(mech, x)
-        x = x - j.T @ jnp.linalg.solve(j @ j.T, constraints(mech, x))
-    j = constraint_jacobian(mech, x)
-    xd = xd - j.T @ jnp.linalg.solve(j @ j.T, j @ xd)
+    if mech.topo.saddle_point:
+        return _project_euclid(mech, prep, x, xd)
+    r0 = r = rows(prep, x)
+    factor = cho_factor(schur(prep, r0))  # one factorisation at the stepped state serves every pass below
+    for _ in range(_POSITION_ITERATIONS):
+        lam = cho_solve(factor, residual(prep, mech.dot_kappa, r, x))
+        x = x - apply_minv_jt(prep, r0, lam).reshape(-1)
+        r = rows(prep, x)
+    for _ in range(_VELOCITY_PASSES):
+        lam = cho_solve(factor, apply_j(prep, r, xd.reshape(-1, 3)))
+        xd = xd - apply_minv_jt(prep, r0, lam).reshape(-1)
     return x, xd
 
 
-class ProjectedSolver(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSolver):
-    """Wraps a diffrax solver; after each step maps ``y1`` through ``projection(y1, args)``."""
-
-    solver: diffrax.AbstractSolver
-    projection: Callable = eqx.field(static=True)
-
-    @property
-    def term_structure(self):
-        return self.solver.term_structure
-
-    @property
-    def interpolation_cls(self):  # pyright: ignore
-        return self.solver.interpolation_cls
-
-    @property
-    def term_compatible_contr_kwargs(self):
-        return self.solver.term_compatible_contr_kwargs
-
-    def order(self, terms):
-        return self.solver.order(terms)
-
-    def error_order(self, terms):
-        return self.solver.error_order(terms)
-
-    def strong_order(self, terms):
-        return self.solver.strong_order(terms)
-
-    @property
-    def scan_kind(self):  # diffrax's adjoints ask Runge-Kutta solvers (and their wrappers) for it
-        return self.solver.scan_kind
-
-    @property
-    def root_finder(self):  # diffrax asks implicit solvers (and their wrappers) for it
-        return self.solver.root_finder
-
-    def init(self, terms, t0, t1, y0, args):
-        return self.solver.init(terms, t0, t1, y0, args)
-
-    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
-        y1, y_error, dense_info, solver_state, result = self.solver.step(
-            terms, t0, t1, y0, args, solver_state, made_jump)
-        return self.projection(y1, args), y_error, dense_info, solver_state, result
-
-    def func(self, terms, t0, y0, args):
-        return self.solver.func(terms, t0, y0, args)
+def project(mech: Mechanism, x, xd, *, props: Prepared | None = None):
+    """Project ``(x, xd)`` onto ``Phi = 0`` and ``J xd = 0`` (mass-orthogonal corrections)."""
+    return project_prepared(mech, prepare(mech) if props is None else props, x, xd)
 
 
-def _adjoint(adjoint, stabilise: bool) -> diffrax.AbstractAdjoint:
-    if adjoint is None:
-        adjoint = diffrax.RecursiveCheckpointAdjoint()
-    elif isinstance(adjoint, str):
-        if adjoint not in ADJOINTS:
-            raise ValueError(f"unknown adjoint {adjoint!r}; choose one of {sorted(ADJOINTS)} or a diffrax adjoint")
-        adjoint = ADJOINTS[adjoint]()
-    elif not isinstance(adjoint, diffrax.AbstractAdjoint):
-        raise ValueError(f"adjoint must be a name in {sorted(ADJOINTS)} or a diffrax adjoint, got {adjoint!r}")
-    if stabilise and isinstance(adjoint, diffrax.BacksolveAdjoint):
-        raise ValueError(
-            "adjoint 'backsolve' cannot differentiate a projected rollout (stabilise=True): it integrates the adjoint "
-            "equations of the unprojected vector field backwards in time and cannot see the coordinate projection "
-            "applied after every step, so its gradients would belong to a different flow. Use 'checkpoint', "
-            "'direct' or 'forward', or stabilise=False (then with Baumgarte terms if drift matters)")
-    return adjoint
+def parameter_groups(mech: Mechanism) -> list:
+    """``(labels, array)`` of every parameter, one label per entry along the leading axis."""
+    topo = mech.topo
+    body = [f"body '{n}'" for n in topo.body_names]
+    groups = [([f"{b} mass" for b in body], mech.body_mass), ([f"{b} centre of mass" for b in body], mech.body_com),
+              ([f"{b} inertia" for b in body], mech.body_inertia),
+              ([f"{b} primaries" for b in body], mech.body_primaries),
+              ([f"point '{n}' position" for n in topo.point_names], mech.point_local),
+              ([f"ground particle '{topo.particle_names[i]}' position" for i in topo.ground], mech.ground_xyz),
+              (list(topo.dot.labels), mech.dot_kappa), ("gravity", mech.gravity)]
+    for prefix, names, fields in (("spring", topo.spring_names, ("stiffness", "damping", "free_length")),
+                                  ("tyre", topo.tyre_names, ("stiffness", "damping", "radius", "ground"))):
+        for f in fields:
+            groups.append(([f"{prefix} '{n}' {f.replace('_', ' ')}" for n in names], getattr(mech, f"{prefix}_{f}")))
+    for ap in mech.applied:
+        groups += [(f"applied '{ap.name}' {lab}", leaf) for lab, leaf in _ode.leaf_groups(ap.fn)]
+    return [(lab, arr) for lab, arr in groups if arr.size]
 
 
-def _parameter_label(mech: Mechanism, path) -> str:
-    """Readable name of a floating leaf of the mechanism from its pytree path, e.g. ``spring 'suspension' stiffness``."""
-    keys = [getattr(k, "name", getattr(k, "idx", getattr(k, "key", None))) for k in path]
-    head = keys[0]
-    named = {"springs": "spring", "tyres": "tyre", "points": "point"}
-    if head in ("body_mass", "body_com", "body_inertia", "body_primaries") and len(keys) > 1:
-        return f"body '{mech.bodies[keys[1]].name}' {head.removeprefix('body_')}"
-    if head in named and len(keys) > 2:
-        return f"{named[head]} '{getattr(mech, head)[keys[1]].name}' {keys[2]}"
-    return str(head)
+@_ode.cached("simulate_mechanism")
+def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabilise, baumgarte, solve):
+    param_bad = _ode.check_finite("simulate_mechanism", parameter_groups(mech))
+    x0, xd0 = _ode.runtime_checks((x0, xd0), time_bad, param_bad, "simulate_mechanism", "(x0, xd0)")
+    plan = chain_plan(mech) if solve == "chain" else None
+    # The chain path needs only the bodies' mass blocks; the dense path its prepared constants (Prepared).
+    cblocks = chain_mass_blocks(mech) if plan is not None else None
+    prep = prepare(mech) if plan is None else None
+    # The mechanism and its prepared quantities reach diffrax through ``args`` (so every adjoint differentiates
+    # them) as a flat list of array leaves; the rest is rebuilt from the static structure inside.
+    leaves, treedef = jax.tree.flatten((mech, prep, cblocks))
+    arrays = [i for i, leaf in enumerate(leaves) if isinstance(leaf, jax.Array)]
 
+    def unpack(args):
+        full = list(leaves)
+        for i, a in zip(arrays, args):
+            full[i] = a
+        return jax.tree.unflatten(treedef, full)
 
-def _finite_parameters(mech: Mechanism, x0):
-    """Refuse non-finite floating leaves of ``mech`` (e.g. swapped in with ``eqx.tree_at`` after the build): eagerly
-    with their names when the values are concrete, else by a run-time error (under jit, grad, vmap)."""
-    flat = [(path, leaf) for path, leaf in jax.tree_util.tree_flatten_with_path(mech)[0]
-            if eqx.is_inexact_array(leaf) or isinstance(leaf, (float, complex))]
-    if not flat:
-        return x0
-    labels = [_parameter_label(mech, path) for path, _ in flat]
-    if not any(isinstance(leaf, jax.core.Tracer) for _, leaf in flat):
-        bad = [lab for lab, (_, leaf) in zip(labels, flat) if not np.all(np.isfinite(np.asarray(leaf)))]
-        if bad:
-            raise ValueError(f"simulate_mechanism: the mechanism parameters are not finite: {', '.join(bad)} "
-                             "(NaN or inf)")
-        return x0
-    bad = jnp.stack([~jnp.all(jnp.isfinite(leaf)) for _, leaf in flat])
-    msgs = [f"simulate_mechanism: the mechanism parameters are not finite: {lab} (NaN or inf)" for lab in labels]
-    return eqx.branched_error_if(x0, jnp.any(bad), jnp.argmax(bad), msgs)
+    def field(t, y, args):
+        m, p, cb = unpack(args)
+        x, xd = y
+        if plan is not None:
+            return xd, chain_accelerations(m, plan, t, x, xd, mass_blocks=cb)
+        return xd, _solve(m, p, t, x, xd, baumgarte)[0]
+
+    def projection(y, args):
+        m, p, cb = unpack(args)
+        if plan is not None:
+            return chain_project(m, plan, *y, mass_blocks=cb)
+        return project_prepared(m, p, *y)
+
+    ts_, (xs, xds), steps, rejected, result, ok = _ode.integrate(
+        field, (x0, xd0), [leaves[i] for i in arrays], t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
+        cfg=cfg, projection=projection if stabilise else None)
+    if stabilise:
+        xs, xds = jax.vmap(lambda a, b: projection((a, b), [leaves[i] for i in arrays]))(xs, xds)
+    return Solution(ts=ts_, q=xs, qd=xds, steps=steps, rejected=rejected, status=result, ok=ok)
 
 
 def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver: str = "tsit5",
@@ -159,76 +140,46 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
     """Integrate the mechanism from ``(x0, xd0)``; returns a :class:`~particlesim.simulate.Solution` whose ``q``
     and ``qd`` are particle positions and velocities ``(T, 3F)``.
 
-    ``stabilise`` projects after every step (see module docstring); ``baumgarte`` optionally adds Baumgarte terms
+    Compiles once per mechanism structure (its :class:`~.model.Topology` and applied-force functions) and solver
+    settings: new parameter values (:meth:`~.model.Mechanism.with_params`), initial states, ``t0``/``t1``,
+    tolerances and save times (of the same count) reuse the compiled program.
+
+    ``stabilise`` projects after every step (module docstring); ``baumgarte`` optionally adds Baumgarte terms
     instead of (or besides) it. Solver names as in :data:`particlesim.simulate.SOLVERS`. ``solve``: "dense" (any
-    mechanism) or "chain" (the O(N) tip-to-base recursion of :mod:`.chain`, for uniform serial chains).
-    ``adjoint``: a name in :data:`ADJOINTS` or a diffrax adjoint; ``None`` is "checkpoint". "backsolve" requires
-    ``stabilise=False`` (module docstring).
+    mechanism; one Cholesky factorisation of the ``C x C`` constraint system per evaluation) or "chain" (the O(N)
+    tip-to-base recursion of :mod:`.chain`, for uniform serial chains). ``adjoint``: a name in :data:`ADJOINTS`
+    or a diffrax adjoint; ``None`` is "checkpoint". "backsolve" requires ``stabilise=False`` (module docstring).
 
-    Raises ``ValueError`` for unknown names, wrong shapes, a non-finite initial state or non-finite mechanism
-    parameters (at run time under jit); the error names the offending parameter.
+    Raises ``ValueError`` for unknown names, bad tolerances or times, a non-finite initial state; ``ModelError``
+    for wrong state shapes or non-finite mechanism parameters (at run time under jit); the error names the
+    offending parameter.
     """
-    if solver.lower() not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; choose one of {sorted(SOLVERS)}")
-    adjoint = _adjoint(adjoint, stabilise)
-    x0 = jnp.asarray(x0, dtype=float)
-    xd0 = jnp.asarray(xd0, dtype=float)
-    if x0.shape != (mech.n_coords,) or xd0.shape != x0.shape:
-        raise ValueError(f"state must be two vectors of length {mech.n_coords} (3 x free particles), "
-                         f"got {x0.shape} and {xd0.shape}")
-    for name, v in (("x0", x0), ("xd0", xd0)):
-        if not isinstance(v, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(v))):
-            raise ValueError(f"{name} is not finite")
-    x0 = _finite_parameters(mech, x0)
-
-    # The mechanism travels to the solver as its flat list of leaves (rebuilt inside from the static tree
-    # structure): diffrax 0.7's BacksolveAdjoint fails on empty tuples in ``args`` (a mechanism without tyres or
-    # applied forces has some).
-    leaves, treedef = jax.tree_util.tree_flatten(mech)
-
-    def unpack(args):
-        return jax.tree_util.tree_unflatten(treedef, args[0]), args[1]
-
-    def project_y(y, args):
-        return project(unpack(args)[0], *y)
-
+    cfg = _ode.settings(solver=solver, adjoint=adjoint, max_steps=max_steps, throw=throw, progress=progress,
+                        save_ts=saveat_ts is not None)
+    if stabilise and isinstance(cfg.adjoint, diffrax.BacksolveAdjoint):
+        raise ValueError(
+            "adjoint 'backsolve' cannot differentiate a projected rollout (stabilise=True): it integrates the adjoint "
+            "equations of the unprojected vector field backwards in time and cannot see the coordinate projection "
+            "applied after every step, so its gradients would belong to a different flow. Use 'checkpoint', "
+            "'direct' or 'forward', or stabilise=False (then with Baumgarte terms if drift matters)")
+    if solve not in ("dense", "chain"):
+        raise ValueError(f"unknown solve {solve!r}; choose 'dense' or 'chain'")
     if solve == "chain":
         if baumgarte:
             raise ValueError("baumgarte terms are available with solve='dense' only")
-        plan = chain_plan(mech)
-
-        def field(t, y, args):
-            x, xd = y
-            return xd, chain_accelerations(unpack(args)[0], plan, t, x, xd)
-    elif solve == "dense":
-        def field(t, y, args):
-            m, props = unpack(args)
-            x, xd = y
-            return xd, accelerations(m, t, x, xd, baumgarte=baumgarte, props=props)
-    else:
-        raise ValueError(f"unknown solve {solve!r}; choose 'dense' or 'chain'")
-
-    implicit = solver.lower() in IMPLICIT_SOLVERS
-    pid = (0.3, 0.3, 0.0) if implicit else (0.4, 1.0, 0.0)
-    controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=pid[0], icoeff=pid[1], dcoeff=pid[2])
-    # Settings diffrax would patch into an unwrapped solver, given up front: the root finder takes the
-    # controller's tolerances; the stage loop kind suits the adjoint (forward mode needs "lax").
-    kw = {"scan_kind": "lax" if isinstance(adjoint, diffrax.ForwardMode) else "bounded"}
-    if implicit:
-        kw["root_finder"] = diffrax.VeryChord(rtol=rtol, atol=atol, norm=controller.norm)
-    inner = SOLVERS[solver.lower()](**kw)
-    slv = ProjectedSolver(inner, project_y) if stabilise else inner
-    saveat = diffrax.SaveAt(t0=True, t1=True) if saveat_ts is None else diffrax.SaveAt(ts=jnp.asarray(saveat_ts))
-    sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(field), slv, t0=t0, t1=t1, dt0=dt0, y0=(x0, xd0), args=(leaves, mass_properties(mech)),
-        saveat=saveat,
-        stepsize_controller=controller, max_steps=max_steps, throw=throw,
-        adjoint=adjoint,
-        progress_meter=diffrax.TqdmProgressMeter() if progress else diffrax.NoProgressMeter())
-    xs, xds = sol.ys
-    if stabilise:
-        xs, xds = jax.vmap(lambda a, b: project(mech, a, b))(xs, xds)
-    ok = sol.result == diffrax.RESULTS.successful
-    return Solution(ts=sol.ts, q=jnp.where(ok, xs, jnp.nan), qd=jnp.where(ok, xds, jnp.nan),
-                    steps=sol.stats["num_accepted_steps"], rejected=sol.stats["num_rejected_steps"],
-                    status=sol.result, ok=ok)
+        chain_plan(mech)  # refuses what is not a uniform chain, now
+    x0 = _ode.as_state(x0)
+    xd0 = _ode.as_state(xd0)
+    if x0.shape != (mech.n_coords,) or xd0.shape != x0.shape:
+        raise ModelError(f"state must be two vectors of length {mech.n_coords} (3 x free particles), "
+                         f"got {x0.shape} and {xd0.shape}")
+    _ode.check_state((x0, xd0), ("x0", "xd0"))
+    t0_, t1_ = _ode.as_time("t0", t0), _ode.as_time("t1", t1)
+    rtol_, atol_ = _ode.as_time("rtol", rtol), _ode.as_time("atol", atol)
+    dt0_ = None if dt0 is None else _ode.as_time("dt0", dt0)
+    ts = None if saveat_ts is None else (saveat_ts if isinstance(saveat_ts, jax.core.Tracer)
+                                         else np.asarray(saveat_ts, dtype=np.float64))
+    time_bad = _ode.check_times(t0_, t1_, rtol_, atol_, dt0_, ts)
+    _ode.check_finite("simulate_mechanism", parameter_groups(mech))  # eager, for concrete values
+    return _simulate(mech, x0, xd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg, bool(stabilise),
+                     float(baumgarte), solve)

@@ -1,229 +1,302 @@
-"""The mechanism model: particles, bodies, constraints and force elements in particle Cartesian coordinates.
+"""The mechanism model: particles, bodies, points, constraint rows and force elements in particle coordinates.
 
 A mechanism (Attia §2) is a set of *particles*; some are fixed to the ground, the others are the unknowns. Each
 rigid body owns 2, 3 or 4 of them as its primary particles (rod, planar, spatial set; :mod:`particlesim.particles`)
 and its secondary particles are their midpoints, so they never appear as unknowns (Attia's reduced form, eqs.
 (23)–(27)). Bodies that list the same particle share it: a spherical joint (one shared particle), a revolute joint
-(two shared particles on the axis), a fixed point or a fixed axis (shared with the ground). Everything else is an
-explicit constraint: rigid distances inside each body (eqs. (11)–(16)), massless links, cut joints that close
-loops (``r_a = r_b``) and prismatic joints.
+(two shared particles on the axis), a fixed point or a fixed axis (shared with the ground).
+
+*Points* are where joints and force elements attach: every particle is a point, and a point fixed to a body is an
+affine combination ``p = sum_t w_t r_t`` of the body's primaries (weights summing to one, solved from its body-frame
+position; exact under every rigid motion, since rigid motions preserve affine combinations). Points are therefore
+linear in the particle coordinates.
+
+Every constraint is one of two typed row kinds on points, each evaluated for all its rows by one vectorised kernel
+(:mod:`.constraints`):
+
+* :class:`DotRows` ``s (p_a - p_b).(p_c - p_d) - kappa = 0`` — the rigid distances inside every body (Attia eqs.
+  (11)–(16), ``a = c``, ``b = d``, ``s = 1/2``), massless links, a point kept on a body's line and the rows of a
+  prismatic joint (the line's perpendicular directions are body points too);
+* :class:`LinearRows` ``e . (p_a - p_b) = 0`` for a constant unit ``e`` — cut joints that close loops (``r_a = r_b``,
+  Attia §2.4) as three rows.
+
+Both are at most quadratic in the coordinates, so their Jacobians and ``gamma`` are closed-form.
 
 State: ``x`` ``(3F,)``, the stacked positions of the F free particles (and ``xd`` their velocities).
 
-Static (``eqx.field(static=True)``): names, index tuples, kinds. Differentiable leaves: body mass, CoM, inertia
-and body-frame primaries (the particle masses are solved from them on every call, so ``jax.grad`` w.r.t. a body's
-mass or inertia goes through the mass solve), ground positions, constraint lengths, force-element constants and
-gravity.
+Static (:class:`Topology`, hashable: the compile-cache key): names, index tuples, row layouts. Differentiable
+leaves: body mass, CoM, inertia and body-frame primaries, body-point positions, ground positions, row constants,
+force-element constants and gravity. Read and replace them by name with :meth:`Mechanism.with_params`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..particles import PAIRS, solve_particle_masses
-
-__all__ = ["Mechanism", "BodySpec", "PointSpec", "SpringSpec", "TyreSpec", "AppliedSpec"]
+__all__ = ["Mechanism", "Topology", "DotRows", "LinearRows", "AppliedSpec"]
 
 
-class BodySpec(eqx.Module):
-    """Static description of one body: its particle set kind and the global indices of its primaries."""
+@dataclasses.dataclass(frozen=True)
+class DotRows:
+    """Rows ``scale (p_a - p_b).(p_c - p_d) - kappa``; point indices ``a, b, c, d`` (one entry per row)."""
 
-    name: str = eqx.field(static=True)
-    kind: str = eqx.field(static=True)
-    primaries: tuple = eqx.field(static=True)
+    a: tuple[int, ...]
+    b: tuple[int, ...]
+    c: tuple[int, ...]
+    d: tuple[int, ...]
+    scale: tuple[float, ...]
+    labels: tuple[str, ...]
 
+    def __len__(self) -> int:
+        return len(self.a)
 
-class PointSpec(eqx.Module):
-    """A point attached to a body (``body >= 0``), or a particle (``particle >= 0``).
-
-    Body points are placed by their coordinates ``local`` in the Gram–Schmidt frame of the body's first three
-    primaries (rods: ``local[0]`` is the fraction along particle 1 -> 2).
-    """
-
-    name: str = eqx.field(static=True)
-    particle: int = eqx.field(static=True)
-    body: int = eqx.field(static=True)
-    local: Float[Array, "3"]
-
-
-class SpringSpec(eqx.Module):
-    """Point-to-point spring-damper: ``f = k (L - l0) + c dL/dt`` pulling the points together when ``f > 0``."""
-
-    name: str = eqx.field(static=True)
-    a: int = eqx.field(static=True)  # point indices
-    b: int = eqx.field(static=True)
-    stiffness: Float[Array, ""]
-    damping: Float[Array, ""]
-    free_length: Float[Array, ""]
+    @property
+    def slots(self) -> np.ndarray:
+        """``(R, 4)`` point index of every slot of every row."""
+        return np.stack([self.a, self.b, self.c, self.d], axis=1).reshape(-1, 4).astype(int)
 
 
-class TyreSpec(eqx.Module):
-    """One-sided tyre: ``d = p.n - ground - radius``; force ``-(k d + c dd/dt) n`` while ``d < 0``, else none."""
+@dataclasses.dataclass(frozen=True)
+class LinearRows:
+    """Rows ``axis . (p_a - p_b)`` with constant unit ``axis``; point indices ``a, b``."""
 
-    name: str = eqx.field(static=True)
-    point: int = eqx.field(static=True)
-    normal: tuple = eqx.field(static=True)
-    stiffness: Float[Array, ""]
-    damping: Float[Array, ""]
-    radius: Float[Array, ""]
-    ground: Float[Array, ""]
+    a: tuple[int, ...]
+    b: tuple[int, ...]
+    axis: tuple[tuple[float, float, float], ...]
+    labels: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return len(self.a)
+
+    @property
+    def slots(self) -> np.ndarray:
+        return np.stack([self.a, self.b], axis=1).reshape(-1, 2).astype(int)
+
+
+@dataclasses.dataclass(frozen=True)
+class Topology:
+    """Everything static about a mechanism (hashable; equal topologies share compiled code)."""
+
+    particle_names: tuple[str, ...]
+    free: tuple[int, ...]  # global indices of the free particles, in state order
+    ground: tuple[int, ...]  # global indices of the ground particles, in ``ground_xyz`` order
+    body_names: tuple[str, ...]
+    body_particles: tuple[tuple[int, ...], ...]  # primaries of each body (2, 3 or 4 global particle indices)
+    point_names: tuple[str, ...]  # particles first (same order), then body points
+    point_body: tuple[int, ...]  # -1 for particle points
+    dot: DotRows
+    linear: LinearRows
+    spring_names: tuple[str, ...]
+    spring_points: tuple[tuple[int, int], ...]
+    tyre_names: tuple[str, ...]
+    tyre_points: tuple[int, ...]
+    tyre_normals: tuple[tuple[float, float, float], ...]
+    saddle_point: bool = False  # the mass matrix is singular (a free particle in no body): solve the full KKT
+
+    @property
+    def n_particles(self) -> int:
+        return len(self.particle_names)
+
+    def body_kind(self, b: int) -> str:
+        return {2: "rod", 3: "planar", 4: "spatial"}[len(self.body_particles[b])]
+
+    def point_slots(self) -> np.ndarray:
+        """``(K, 4)`` particles each point combines (particles: itself; body points: the body's primaries, padded
+        by repeating the last one, whose weight is then zero)."""
+        out = np.zeros((len(self.point_names), 4), dtype=int)
+        for k, b in enumerate(self.point_body):
+            if b < 0:
+                out[k] = k
+            else:
+                prim = self.body_particles[b]
+                out[k] = list(prim) + [prim[-1]] * (4 - len(prim))
+        return out
+
+    def free_column(self) -> np.ndarray:
+        """For every particle its position in the free-particle list, ``-1`` for ground particles."""
+        col = -np.ones(self.n_particles, dtype=int)
+        col[np.asarray(self.free, dtype=int)] = np.arange(len(self.free))
+        return col
+
+    def row_labels(self) -> list[str]:
+        return list(self.dot.labels) + list(self.linear.labels)
 
 
 class AppliedSpec(eqx.Module):
-    """An applied force ``fn(t, x, xd) -> (3,)`` at a point (``kind='force'``) or torque on a body (``'torque'``)."""
+    """An applied force ``fn(t, x, xd) -> (3,)`` at a point (``kind='force'``) or torque on a body (``'torque'``).
+
+    ``fn`` is static: the same function object reuses compiled code; give it parameters by making it an
+    ``equinox.Module`` (its array fields are then traced)."""
 
     name: str = eqx.field(static=True)
     kind: str = eqx.field(static=True)
     target: int = eqx.field(static=True)  # point index (force) or body index (torque)
-    fn: Callable = eqx.field(static=True)
+    fn: Callable
 
 
 class Mechanism(eqx.Module):
     """A mechanism in particle coordinates; build it with :class:`~particlesim.mechanism.MechanismBuilder`."""
 
     # --- differentiable parameters ---
-    body_mass: tuple
-    body_com: tuple
-    body_inertia: tuple
-    body_primaries: tuple  # body-frame primary positions, (k, 3) each
+    body_mass: Float[Array, " B"]
+    body_com: Float[Array, "B 3"]  # body frame
+    body_inertia: Float[Array, "B 3 3"]  # about the CoM, body axes
+    body_primaries: Float[Array, "B 4 3"]  # body-frame primaries (planar/rod: padded by repeating the last)
+    point_local: Float[Array, "K 3"]  # body-frame position of body points (rows of particle points unused)
     ground_xyz: Float[Array, "G 3"]
-    lengths: Float[Array, " D"]  # distance constraints
-    point_lengths: Float[Array, " K"]  # massless links between points
-    offsets: Float[Array, " A"]  # prismatic angle locks
+    dot_kappa: Float[Array, " D"]  # constants of the dot rows
+    spring_stiffness: Float[Array, " S"]
+    spring_damping: Float[Array, " S"]
+    spring_free_length: Float[Array, " S"]
+    tyre_stiffness: Float[Array, " T"]
+    tyre_damping: Float[Array, " T"]
+    tyre_radius: Float[Array, " T"]
+    tyre_ground: Float[Array, " T"]
     gravity: Float[Array, "3"]
-    points: tuple
-    springs: tuple
-    tyres: tuple
-    applied: tuple
+    applied: tuple  # AppliedSpec
     # --- static topology ---
-    particle_names: tuple = eqx.field(static=True)
-    free: tuple = eqx.field(static=True)  # global indices of free particles, in state order
-    ground: tuple = eqx.field(static=True)  # global indices of ground particles
-    bodies: tuple = eqx.field(static=True)
-    distance_pairs: tuple = eqx.field(static=True)  # (i, j, label)
-    coincide_pairs: tuple = eqx.field(static=True)  # (i, j, label)
-    generic: tuple = eqx.field(static=True)  # (kind, point indices, label, parameter index): see constraints
+    topo: Topology = eqx.field(static=True)
+
+    # ---- sizes and names ----
+    @property
+    def particle_names(self) -> tuple[str, ...]:
+        return self.topo.particle_names
+
+    @property
+    def free(self) -> tuple[int, ...]:
+        return self.topo.free
+
+    @property
+    def ground(self) -> tuple[int, ...]:
+        return self.topo.ground
 
     @property
     def n_free(self) -> int:
-        return len(self.free)
+        return len(self.topo.free)
 
     @property
     def n_coords(self) -> int:
-        return 3 * len(self.free)
+        return 3 * len(self.topo.free)
+
+    @property
+    def n_constraints(self) -> int:
+        return len(self.topo.dot) + len(self.topo.linear)
+
+    def index(self, particle: str) -> int:
+        try:
+            return self.topo.particle_names.index(particle)
+        except ValueError:
+            raise KeyError(f"no particle named {particle!r}") from None
+
+    def free_slice(self, particle: str) -> slice:
+        """The three entries of ``x`` holding ``particle``'s position."""
+        k = self.topo.free.index(self.index(particle))
+        return slice(3 * k, 3 * k + 3)
+
+    def body_index(self, name: str) -> int:
+        try:
+            return self.topo.body_names.index(name)
+        except ValueError:
+            raise KeyError(f"no body named {name!r}; bodies: {list(self.topo.body_names)}") from None
+
+    def point_index(self, name: str) -> int:
+        try:
+            return self.topo.point_names.index(name)
+        except ValueError:
+            raise KeyError(f"no point named {name!r}") from None
 
     # ---- positions ----
     def all_positions(self, x: Float[Array, " 3F"]) -> Float[Array, "P 3"]:
         """Positions of every particle (free from ``x``, ground from ``ground_xyz``), in global index order."""
-        n = len(self.particle_names)
-        out = jnp.zeros((n, 3), dtype=x.dtype)
-        out = out.at[np.asarray(self.free, dtype=int)].set(x.reshape(-1, 3))
-        if self.ground:
-            out = out.at[np.asarray(self.ground, dtype=int)].set(self.ground_xyz.astype(x.dtype))
+        out = jnp.zeros((self.topo.n_particles, 3), dtype=x.dtype)
+        out = out.at[np.asarray(self.topo.free, dtype=int)].set(x.reshape(-1, 3))
+        if self.topo.ground:
+            out = out.at[np.asarray(self.topo.ground, dtype=int)].set(self.ground_xyz.astype(x.dtype))
         return out
 
-    def point_position(self, k: int, r: Float[Array, "P 3"]) -> Float[Array, "3"]:
-        """World position of point ``k`` given all particle positions ``r``."""
-        return self.point_positions(r)[k]
-
     def point_positions(self, r: Float[Array, "P 3"]) -> Float[Array, "K 3"]:
-        """World positions of all points (particles first, then body points), vectorised over bodies.
+        """World positions of all points (particles first, then body points) from all particle positions."""
+        from .constraints import point_weights
 
-        Body points sit at ``r_1 + F l`` with ``F`` the Gram–Schmidt frame of the body's first three primaries
-        (rods: ``r_1 + l_0 (r_2 - r_1)``)."""
-        body_pts = [k for k, pt in enumerate(self.points) if pt.particle < 0]
-        if not body_pts:
-            return r
-        bodies = np.asarray([self.points[k].body for k in body_pts])
-        local = jnp.stack([self.points[k].local for k in body_pts])
-        prim = np.asarray([(self.bodies[b].primaries + (self.bodies[b].primaries[-1],) * 3)[:3] for b in bodies])
-        p0, p1, p2 = r[prim[:, 0]], r[prim[:, 1]], r[prim[:, 2]]
-        is_rod = np.asarray([self.bodies[b].kind == "rod" for b in bodies])
-        e1 = p1 - p0
-        e1 = e1 / jnp.linalg.norm(e1, axis=1, keepdims=True)
-        w = p2 - p0
-        w = w - jnp.sum(w * e1, axis=1, keepdims=True) * e1
-        # Rods have no third primary (p2 == p1, w == 0): guard the norm, their rows are replaced below.
-        wn = jnp.linalg.norm(w, axis=1, keepdims=True)
-        e2 = w / jnp.where(wn > 0, wn, 1.0)
-        e3 = jnp.cross(e1, e2)
-        frame_pts = p0 + local[:, :1] * e1 + local[:, 1:2] * e2 + local[:, 2:3] * e3
-        rod_pts = p0 + local[:, :1] * (p1 - p0)
-        pts = jnp.where(is_rod[:, None], rod_pts, frame_pts)
-        return jnp.concatenate([r, pts], axis=0)
+        return jnp.einsum("kt,ktj->kj", point_weights(self), r[self.topo.point_slots()])
+
+    def point_position(self, k: int, r: Float[Array, "P 3"]) -> Float[Array, "3"]:
+        return self.point_positions(r)[k]
 
     # ---- masses ----
     def particle_masses(self, b: int) -> Float[Array, " n"]:
         """Masses of body ``b``'s equivalent particles (primaries then secondaries), solved from its inertia."""
+        from ..particles import solve_particle_masses
+
+        k = len(self.topo.body_particles[b])
         return solve_particle_masses(self.body_mass[b], self.body_com[b], self.body_inertia[b],
-                                     self.body_primaries[b])
+                                     self.body_primaries[b, :k])
 
     def scalar_mass_matrix(self) -> Float[Array, "P P"]:
-        """``sum_b B_b^T diag(m_b) B_b`` scattered on all particles (B maps primaries to all nodes).
+        """``sum_b L_b`` scattered on all particles, ``L_b = int lambda lambda^T dm`` the body's mass matrix in its
+        primaries (:func:`~particlesim.particles.primary_mass_matrix`; equal to ``B^T diag(m) B`` over its 10, 6
+        or 3 particles). Bodies of one kind are solved together (one vmapped solve per kind)."""
+        from .dynamics import scalar_mass_matrix
 
-        Bodies of one kind are solved together (one vmapped mass solve per kind) and scattered in one add.
-        """
-        n = len(self.particle_names)
-        rows, cols, vals = [], [], []
-        for kind in ("spatial", "planar", "rod"):
-            ids = [b for b, spec in enumerate(self.bodies) if spec.kind == kind]
-            if not ids:
-                continue
-            k = len(self.bodies[ids[0]].primaries)
-            pairs = PAIRS[kind]
-            incidence = np.zeros((k + len(pairs), k))
-            incidence[:k] = np.eye(k)
-            for row, (i, j) in enumerate(pairs):
-                incidence[k + row, [i, j]] = 0.5
-            masses = jax.vmap(solve_particle_masses)(
-                jnp.stack([self.body_mass[b] for b in ids]), jnp.stack([self.body_com[b] for b in ids]),
-                jnp.stack([self.body_inertia[b] for b in ids]), jnp.stack([self.body_primaries[b] for b in ids]))
-            blocks = jnp.einsum("ni,bn,nj->bij", incidence, masses, incidence)  # (B, k, k)
-            prim = np.asarray([self.bodies[b].primaries for b in ids])  # (B, k)
-            rows.append(np.repeat(prim, k, axis=1).reshape(-1))
-            cols.append(np.tile(prim, (1, k)).reshape(-1))
-            vals.append(blocks.reshape(-1))
-        m_s = jnp.zeros((n, n))
-        if vals:
-            m_s = m_s.at[np.concatenate(rows), np.concatenate(cols)].add(jnp.concatenate(vals))
-        return m_s
+        return scalar_mass_matrix(self)
 
     def mass_matrix(self) -> Float[Array, "3F 3F"]:
         """The constant mass matrix of the free coordinates, ``M_s[free, free] (x) I_3``."""
-        f = np.asarray(self.free, dtype=int)
-        m_s = self.scalar_mass_matrix()[np.ix_(f, f)]
-        return jnp.kron(m_s, jnp.eye(3))
+        f = np.asarray(self.topo.free, dtype=int)
+        return jnp.kron(self.scalar_mass_matrix()[np.ix_(f, f)], jnp.eye(3))
 
     def lumped_masses(self) -> Float[Array, " P"]:
         """Per-particle mass carrying linear momentum and weight: ``m_bar`` of Attia eq. (25), summed over bodies."""
         return jnp.sum(self.scalar_mass_matrix(), axis=1)
 
     def total_mass(self) -> Float[Array, ""]:
-        return sum(self.body_mass)
+        return jnp.sum(self.body_mass)
 
-    # ---- names ----
-    def index(self, particle: str) -> int:
-        return self.particle_names.index(particle)
+    # ---- parameters by name ----
+    def with_params(self, *, body: dict | None = None, spring: dict | None = None, tyre: dict | None = None,
+                    gravity=None) -> "Mechanism":
+        """A copy with parameters replaced by name (values may be traced: one compiled rollout serves all).
 
-    def free_slice(self, particle: str) -> slice:
-        """The three entries of ``x`` holding ``particle``'s position."""
-        k = self.free.index(self.index(particle))
-        return slice(3 * k, 3 * k + 3)
+        ``body={"wheel": {"mass": 20.0, "com": ..., "inertia": ...}}``, ``spring={"suspension": {"stiffness": ...,
+        "damping": ..., "free_length": ...}}``, ``tyre={"tyre": {"stiffness": ..., "damping": ..., "radius": ...,
+        "ground": ...}}``, ``gravity=(0, 0, -9.81)``. Unknown names or fields raise ``KeyError``. Values are not
+        checked here; the simulation refuses non-finite ones."""
+        new = {}
 
-    def body_index(self, name: str) -> int:
-        for i, b in enumerate(self.bodies):
-            if b.name == name:
-                return i
-        raise KeyError(f"no body named {name!r}")
+        def put(field: str, i: int, value):
+            arr = new.get(field, getattr(self, field))
+            new[field] = arr.at[i].set(jnp.asarray(value, dtype=arr.dtype))
 
-    def point_index(self, name: str) -> int:
-        for i, p in enumerate(self.points):
-            if p.name == name:
-                return i
-        raise KeyError(f"no point named {name!r}")
+        groups = ((body, "body", self.topo.body_names, ("mass", "com", "inertia")),
+                  (spring, "spring", self.topo.spring_names, ("stiffness", "damping", "free_length")),
+                  (tyre, "tyre", self.topo.tyre_names, ("stiffness", "damping", "radius", "ground")))
+        for values, prefix, names, fields in groups:
+            for name, entries in (values or {}).items():
+                if name not in names:
+                    raise KeyError(f"no {prefix} named {name!r}; {prefix}s: {list(names)}")
+                for field, value in entries.items():
+                    if field not in fields:
+                        raise KeyError(f"{prefix} {name!r} has no parameter {field!r}; choose from {list(fields)}")
+                    put(f"{prefix}_{field}", names.index(name), value)
+        if gravity is not None:
+            new["gravity"] = jnp.asarray(gravity, dtype=float)
+        return eqx.tree_at(lambda m: [getattr(m, f) for f in new], self, list(new.values()))
+
+    def parameter_label(self, path) -> str:
+        """Readable name of a floating leaf from its pytree path, e.g. ``spring 'suspension' stiffness``."""
+        keys = [getattr(k, "name", getattr(k, "idx", getattr(k, "key", None))) for k in path]
+        head = keys[0]
+        for prefix, names in (("body", self.topo.body_names), ("spring", self.topo.spring_names),
+                              ("tyre", self.topo.tyre_names)):
+            if isinstance(head, str) and head.startswith(prefix + "_"):
+                field = head.removeprefix(prefix + "_")
+                if len(names) == 1:
+                    return f"{prefix} '{names[0]}' {field}"
+                return f"{prefix}s' {field} ({', '.join(repr(n) for n in names)})"
+        return str(head)

@@ -62,7 +62,7 @@ SPIN_EULER_ATOL = 1e-7
 
 def _nodes(mech, x, xd):
     """All node (primary + secondary) positions, velocities and masses of body 0."""
-    idx = np.asarray(mech.bodies[0].primaries)
+    idx = np.asarray(mech.topo.body_particles[0])
     r = mech.all_positions(x)[idx]
     v = mech.all_positions(xd)[idx] * (~np.isin(idx, mech.ground))[:, None]
     return particle_positions(r), particle_positions(v), mech.particle_masses(0)

@@ -69,7 +69,11 @@ def _static_equilibrium(mech, x_start):
     f = jax.jit(lambda z: (eqs(z), jax.jacfwd(eqs)(z)))
     for _ in range(30):
         r, jac = f(z)
-        z = z - jnp.linalg.lstsq(jac, r)[0]
+        # Columns scaled to unit norm: positions (forces ~1e5 N/m per m) and multipliers differ by orders of magnitude,
+        # and the wheel's spin is a null direction of the statics; unscaled, lstsq's cutoff drops real directions.
+        sc = jnp.linalg.norm(jac, axis=0)
+        sc = jnp.where(sc > 0, sc, 1.0)
+        z = z - jnp.linalg.lstsq(jac / sc[None, :], r)[0] / sc
     return z[:n], float(jnp.abs(f(z)[0]).max())
 
 

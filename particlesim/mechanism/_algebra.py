@@ -1,0 +1,194 @@
+"""The constraint algebra of a mechanism, arranged so that one evaluation is a handful of small dense products.
+
+Every dot row is ``s_r v_r . u_r - kappa_r`` with ``v_r = p_a - p_b`` and ``u_r = p_c - p_d`` (:mod:`.model`), and
+points are linear in the free particle positions ``X`` (F, 3): ``p = W X + p_0``. Hence
+
+    [v; u] = D X + c,   D = [W_a - W_b; W_c - W_d]   (2D x F, constant for a parameter set)
+
+and the row's Jacobian is ``J_r = s_r (D_v[r] (x) u_r + D_u[r] (x) v_r)``. With ``E = [u; v]`` (the partner of each
+half of ``D``) the Schur complement ``S = J M^-1 J^T`` of the dot rows is
+
+    S[r, q] = s_r s_q sum_{i, j in (v, u)} A[(i, r), (j, q)] (E[(i, r)] . E[(j, q)]),     A = D M_s^-1 D^T
+
+so per evaluation it costs one Gram product ``E E^T`` and one elementwise combination with the constant ``A``;
+``J Y`` and ``M^-1 J^T lam`` likewise reduce to ``D Y`` and ``(D M_s^-1)^T`` times row-scaled ``E``. Linear rows
+(cut joints) have a constant Jacobian, so their blocks of ``S`` are constants or (with the dot rows) one
+contraction with a constant tensor. Everything that depends on the parameters only lives in :class:`Prepared`,
+computed once per parameter set (once per rollout), and is differentiable in the parameters.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.linalg import cho_factor, cho_solve
+from jaxtyping import Array, Float
+
+from ..particles import primary_mass_matrix
+from .constraints import linear_blocks, point_free_weights, point_weights, points
+from .model import Mechanism
+
+__all__ = ["Prepared", "prepare", "scalar_mass_matrix", "Rows", "rows", "schur", "apply_j", "apply_minv_jt",
+           "residual", "gamma"]
+
+
+def scalar_mass_matrix(mech: Mechanism) -> Float[Array, "P P"]:
+    """``M_s`` over all particles: each body's ``L_b`` (k x k) added at its primaries; one vmapped solve per kind."""
+    topo = mech.topo
+    n = topo.n_particles
+    rows_, cols, vals = [], [], []
+    for k in (4, 3, 2):
+        ids = np.asarray([b for b, prim in enumerate(topo.body_particles) if len(prim) == k], dtype=int)
+        if not ids.size:
+            continue
+        blocks = jax.vmap(primary_mass_matrix)(mech.body_mass[ids], mech.body_com[ids], mech.body_inertia[ids],
+                                               mech.body_primaries[ids, :k])  # (B, k, k)
+        prim = np.asarray([topo.body_particles[b] for b in ids])  # (B, k)
+        rows_.append(np.repeat(prim, k, axis=1).reshape(-1))
+        cols.append(np.tile(prim, (1, k)).reshape(-1))
+        vals.append(blocks.reshape(-1))
+    m_s = jnp.zeros((n, n), dtype=mech.body_mass.dtype)
+    if vals:
+        m_s = m_s.at[np.concatenate(rows_), np.concatenate(cols)].add(jnp.concatenate(vals))
+    return m_s
+
+
+class Prepared(eqx.Module):
+    """Everything that depends on the parameters only (not on the state): computed once per rollout."""
+
+    w: Float[Array, "K 4"]  # point weights on their particles
+    wk: Float[Array, "K F"]  # point-to-free-particle weights
+    p0: Float[Array, "K 3"]  # ground contribution to every point
+    ms: Float[Array, "F F"]  # scalar mass matrix of the free particles
+    lumped: Float[Array, " P"]  # m_bar of every particle (Attia eq. (25))
+    qg: Float[Array, "F 3"]  # gravity on the free particles
+    d: Float[Array, "2D F"]  # [W_a - W_b; W_c - W_d] of the dot rows
+    c: Float[Array, "2D 3"]  # their ground offsets
+    scale: Float[Array, " D"]
+    j_lin: Float[Array, "L F 3"]  # the (constant) Jacobian of the linear rows
+    c_lin: Float[Array, " L"]  # their ground offsets
+    # With an invertible mass matrix (None otherwise: the saddle-point solve is used):
+    minv: Float[Array, "F F"] | None
+    minv_qg: Float[Array, "F 3"] | None
+    dw: Float[Array, "2D F"] | None  # d @ minv
+    a: Float[Array, "2D 2D"] | None  # d @ minv @ d^T
+    jw_lin: Float[Array, "L F 3"] | None  # minv-weighted linear rows
+    b_lin: Float[Array, "2D L 3"] | None  # d contracted with jw_lin (dot-linear coupling of S)
+    s_lin: Float[Array, "L L"] | None  # the linear rows' block of S
+    mwk: Float[Array, "F K"] | None  # minv @ wk^T: point forces to accelerations
+
+
+def prepare(mech: Mechanism) -> Prepared:
+    """The parameter-only quantities of :class:`Prepared` (differentiable in the parameters)."""
+    topo = mech.topo
+    free = np.asarray(topo.free, dtype=int)
+    w = point_weights(mech)
+    wk = point_free_weights(topo, w)
+    ground_only = jnp.where(jnp.asarray(topo.free_column() < 0)[:, None], mech.all_positions(
+        jnp.zeros(3 * len(free), dtype=w.dtype)), 0.0)
+    p0 = points(topo, w, ground_only)
+    m_all = scalar_mass_matrix(mech)
+    ms = m_all[np.ix_(free, free)]
+    lumped = jnp.sum(m_all, axis=1)
+    qg = lumped[free][:, None] * mech.gravity[None, :]
+    dr = topo.dot
+    ia, ib, ic, idd = (np.asarray(v, dtype=int) for v in (dr.a, dr.b, dr.c, dr.d))
+    d = jnp.concatenate([wk[ia] - wk[ib], wk[ic] - wk[idd]], axis=0)
+    c = jnp.concatenate([p0[ia] - p0[ib], p0[ic] - p0[idd]], axis=0)
+    scale = jnp.asarray(dr.scale, dtype=w.dtype)
+    lr = topo.linear
+    la, lb = np.asarray(lr.a, dtype=int), np.asarray(lr.b, dtype=int)
+    e = jnp.asarray(linear_blocks(topo)[:, 0], dtype=w.dtype)  # (L, 3)
+    j_lin = (wk[la] - wk[lb])[:, :, None] * e[:, None, :]
+    c_lin = jnp.sum(e * (p0[la] - p0[lb]), axis=1)
+    base = dict(w=w, wk=wk, p0=p0, ms=ms, lumped=lumped, qg=qg, d=d, c=c, scale=scale, j_lin=j_lin, c_lin=c_lin)
+    if topo.saddle_point:
+        return Prepared(**base, minv=None, minv_qg=None, dw=None, a=None, jw_lin=None, b_lin=None, s_lin=None,
+                        mwk=None)
+    minv = cho_solve(cho_factor(ms), jnp.eye(ms.shape[0], dtype=ms.dtype))
+    minv = 0.5 * (minv + minv.T)
+    dw = d @ minv
+    jw_lin = jnp.einsum("lfk,fg->lgk", j_lin, minv)
+    return Prepared(**base, minv=minv, minv_qg=minv @ qg, dw=dw, a=dw @ d.T, jw_lin=jw_lin,
+                    b_lin=jnp.einsum("if,lfk->ilk", d, jw_lin), s_lin=jnp.einsum("lfk,mfk->lm", j_lin, jw_lin),
+                    mwk=minv @ wk.T)
+
+
+class Rows(eqx.Module):
+    """The dot rows' vectors at one state: ``vu = [v; u]`` (2D, 3) and their rates ``dvu``."""
+
+    vu: Float[Array, "2D 3"]
+    dvu: Float[Array, "2D 3"] | None
+
+
+def _mm(a: Array, b: Array) -> Array:
+    """``a @ b`` for small ``b`` (F, 3) as a broadcast product summed over F: one fused loop, where a dot thunk
+    costs more than the arithmetic at these sizes."""
+    return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
+
+
+def rows(prep: Prepared, x: Float[Array, " 3F"], xd=None) -> Rows:
+    vu = _mm(prep.d, x.reshape(-1, 3)) + prep.c
+    return Rows(vu, None if xd is None else _mm(prep.d, xd.reshape(-1, 3)))
+
+
+def _partner(vu: Array) -> Array:
+    """``E = [u; v]``: the vector each half of ``D`` is paired with in the Jacobian."""
+    n = vu.shape[0] // 2
+    return jnp.concatenate([vu[n:], vu[:n]], axis=0)
+
+
+def residual(prep: Prepared, kappa: Array, r: Rows, x: Array) -> Float[Array, " C"]:
+    n = prep.scale.shape[0]
+    dot = prep.scale * jnp.sum(r.vu[:n] * r.vu[n:], axis=1) - kappa
+    lin = jnp.sum(prep.j_lin * x.reshape(1, -1, 3), axis=(1, 2)) + prep.c_lin
+    return jnp.concatenate([dot, lin])
+
+
+def gamma(prep: Prepared, r: Rows) -> Float[Array, " C"]:
+    """``-d^2 Phi/dt^2`` at zero acceleration: ``-2 s dv . du`` for dot rows, zero for linear rows."""
+    n = prep.scale.shape[0]
+    dot = -2.0 * prep.scale * jnp.sum(r.dvu[:n] * r.dvu[n:], axis=1)
+    return jnp.concatenate([dot, jnp.zeros(prep.c_lin.shape, dtype=dot.dtype)])
+
+
+def schur(prep: Prepared, r: Rows) -> Float[Array, "C C"]:
+    """``S = J M^-1 J^T`` from the Gram matrix of ``E`` and the constant ``A`` (module docstring)."""
+    n = prep.scale.shape[0]
+    e = _partner(r.vu)
+    # h[r, q] = sum_{i,j} A[(i, r), (j, q)] E[(i, r)] . E[(j, q)], written as outer products of the three
+    # coordinates: one elementwise kernel (a dot over 3 plus a block reduction costs several, some of them slow).
+    eb = (e[:n], e[n:])
+    ab = prep.a.reshape(2, n, 2, n)
+    h = sum(ab[i, :, j, :] * sum(eb[i][:, k, None] * eb[j][None, :, k] for k in range(3))
+            for i in range(2) for j in range(2))
+    s_dd = prep.scale[:, None] * prep.scale[None, :] * h
+    if prep.c_lin.shape[0] == 0:
+        return s_dd
+    s_dl = prep.scale[:, None] * jnp.sum(e[:, None, :] * prep.b_lin, axis=2).reshape(2, n, -1).sum(axis=0)
+    return jnp.block([[s_dd, s_dl], [s_dl.T, prep.s_lin]])
+
+
+def apply_j(prep: Prepared, r: Rows, y: Float[Array, "F 3"]) -> Float[Array, " C"]:
+    """``J y`` for ``y`` (F, 3)."""
+    n = prep.scale.shape[0]
+    dy = _mm(prep.d, y)
+    dot = prep.scale * jnp.sum((_partner(r.vu) * dy).reshape(2, n, 3), axis=(0, 2))
+    return jnp.concatenate([dot, jnp.sum(prep.j_lin * y[None], axis=(1, 2))])
+
+
+def apply_minv_jt(prep: Prepared, r: Rows, lam: Float[Array, " C"]) -> Float[Array, "F 3"]:
+    """``M^-1 J^T lam`` as (F, 3)."""
+    n = prep.scale.shape[0]
+    ls = jnp.tile(lam[:n] * prep.scale, 2)[:, None] * _partner(r.vu)
+    return jnp.sum(prep.dw[:, :, None] * ls[:, None, :], axis=0) + jnp.sum(prep.jw_lin * lam[n:, None, None], axis=0)
+
+
+def jacobian(prep: Prepared, r: Rows) -> Float[Array, "C F 3"]:
+    """The dense Jacobian ``(C, F, 3)`` (for the saddle-point solve and the public API)."""
+    n = prep.scale.shape[0]
+    e = _partner(r.vu)
+    j_dot = (prep.d[:, :, None] * e[:, None, :]).reshape(2, n, prep.d.shape[1], 3).sum(axis=0)
+    return jnp.concatenate([prep.scale[:, None, None] * j_dot, prep.j_lin], axis=0)

@@ -1,0 +1,123 @@
+"""The Schur-complement engine against an independent saddle-point solve built from autodiff of the residuals.
+
+The reference here shares nothing with :mod:`particlesim.mechanism._algebra` but the model: its constraint Jacobian
+and ``gamma`` come from forward-mode differentiation of :func:`~particlesim.mechanism.constraints`, its mass matrix
+from :meth:`Mechanism.mass_matrix` (the bodies' particle masses), its forces from
+:func:`~particlesim.mechanism.generalized_forces`, and the system ``[[M, J^T], [J, 0]]`` is solved by LU. Also: the
+saddle-point fallback (for singular mass matrices) agrees with both, and the compiled MuJoCo tyre callback used by
+the benchmarks equals the Python one.
+"""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from particlesim.mechanism import (accelerations_and_multipliers, constraints, generalized_forces, project)
+from particlesim.scenes.chains import chain_geometry, chain_mechanism
+from particlesim.scenes.nikravesh import aa_mechanism
+from particlesim.scenes.quarter_car import quarter_car
+
+ACC_RTOL = 1e-9  # relative to the largest acceleration / multiplier: three exact solves, round-off apart
+
+
+def _slider_crank():
+    from test_constraints import _slider_crank_like  # every row kind: distances, cut joint, prismatic, ground
+
+    return _slider_crank_like()
+
+
+SCENES = {
+    "revolute chain": lambda: chain_mechanism(chain_geometry(3, "revolute", seed=3)),
+    "spherical chain": lambda: chain_mechanism(chain_geometry(3, "spherical", seed=3)),
+    "quarter car": quarter_car,
+    "Nikravesh AA": aa_mechanism,
+    "slider crank": _slider_crank,
+}
+
+
+def _reference(mech, x, xd):
+    j = jax.jacfwd(lambda y: constraints(mech, y))(x)
+    gamma = -jax.jvp(lambda y: jax.jvp(lambda z: constraints(mech, z), (y,), (xd,))[1], (x,), (xd,))[1]
+    m = mech.mass_matrix()
+    q = generalized_forces(mech, 0.0, x, xd)
+    n, c = m.shape[0], j.shape[0]
+    sol = jnp.linalg.solve(jnp.block([[m, j.T], [j, jnp.zeros((c, c))]]), jnp.concatenate([q, gamma]))
+    return sol[:n], sol[n:]
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_schur_solve_equals_independent_saddle_point_solve(name):
+    mech, x0 = SCENES[name]()
+    rng = np.random.default_rng(7)
+    x, xd = project(mech, jnp.asarray(x0) + 1e-3 * rng.normal(size=x0.shape), jnp.asarray(rng.normal(size=x0.shape)))
+    a_ref, lam_ref = _reference(mech, x, xd)
+    a, lam = accelerations_and_multipliers(mech, 0.0, x, xd)
+    kkt = dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, saddle_point=True))
+    a_kkt, lam_kkt = accelerations_and_multipliers(kkt, 0.0, x, xd)
+    # Scale: the largest acceleration, or gravity's (the slider crank is locked: its accelerations are round-off)
+    scale = max(float(jnp.abs(a_ref).max()), float(jnp.linalg.norm(mech.gravity)))
+    for got in (a, a_kkt):
+        np.testing.assert_allclose(got, a_ref, rtol=0, atol=ACC_RTOL * scale)
+    # Multipliers are forces: judged against the force scale (they may all be small, e.g. at rest)
+    force = max(float(jnp.abs(lam_ref).max()), float(jnp.abs(generalized_forces(mech, 0.0, x, xd)).max()))
+    for got in (lam, lam_kkt):
+        np.testing.assert_allclose(got, lam_ref, rtol=0, atol=ACC_RTOL * force)
+
+
+POS_ATOL = 1e-13  # m^2: rows are (|d|^2 - L^2)/2 with |d| ~ 1 m, round-off times the rows' conditioning
+VEL_RTOL = 1e-13  # relative to the largest velocity or 1 m/s (the slider crank is locked: its velocity is the noise)
+
+
+@pytest.mark.parametrize("name", ["quarter car", "slider crank"])
+def test_projection_reaches_round_off_from_a_step_sized_error(name):
+    """One factorisation, two position and two velocity passes: residuals at round-off from an admissible state
+    disturbed by 1e-6 (the size of a step's local error, which is what the integrator hands it)."""
+    from particlesim.mechanism import residuals
+
+    mech, x0 = SCENES[name]()
+    rng = np.random.default_rng(3)
+    x, xd = project(mech, jnp.asarray(x0), jnp.asarray(rng.normal(size=x0.shape)))
+    x = x + 1e-6 * rng.normal(size=x0.shape)
+    xd = xd + 1e-6 * rng.normal(size=x0.shape)
+    assert float(jnp.abs(residuals(mech, x, xd)[0]).max()) > 1e3 * POS_ATOL  # the disturbance is real
+    xp, xdp = project(mech, x, xd)
+    pos, vel = residuals(mech, xp, xdp)
+    assert float(jnp.abs(pos).max()) <= POS_ATOL
+    assert float(jnp.abs(vel).max()) <= VEL_RTOL * max(float(jnp.abs(xd).max()), 1.0)
+
+
+def test_compiled_tyre_callback_equals_python_callback():
+    """The quarter-car MuJoCo C twin with its tyre as a compiled ``mjcb_passive`` (benchmarks, ``mujoco.rollout``)
+    against the same twin with the Python callback of :mod:`particlesim.scenes.quarter_car_twin`."""
+    mujoco = pytest.importorskip("mujoco")
+    from mujoco import rollout
+
+    from particlesim.io import mjcb
+    from particlesim.scenes import quarter_car as qc
+    from particlesim.scenes.quarter_car_twin import twin_rollout, twin_xml
+
+    dt, ts = 1e-3, np.linspace(0.0, 0.5, 6)
+    python = twin_rollout(ts, dt)["chassis_z"]
+    m = mujoco.MjModel.from_xml_string(twin_xml(dt))
+    d = mujoco.MjData(m)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "centre")
+    mjcb.install_tyres([(site, (0, 0, 1), float(qc._p(10)[2]) - qc.TYRE["radius"], qc.TYRE["radius"],
+                         qc.TYRE["stiffness"], qc.TYRE["damping"])])
+    try:
+        mujoco.mj_forward(m, d)
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        state0 = np.zeros((1, mujoco.mj_stateSize(m, spec)))
+        mujoco.mj_getState(m, d, state0[0], spec)
+        states, _ = rollout.Rollout(nthread=1).rollout(m, d, state0, nstep=500)
+    finally:
+        mjcb.uninstall()
+    chassis = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "chassis")
+    native = []
+    for k in (0, 100, 200, 300, 400, 500):
+        d.qpos[:] = state0[0, 1:1 + m.nq] if k == 0 else states[0, k - 1, 1:1 + m.nq]
+        mujoco.mj_kinematics(m, d)
+        native.append(d.xpos[chassis, 2])
+    np.testing.assert_allclose(native, python, rtol=0, atol=1e-12)
