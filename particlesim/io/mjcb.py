@@ -1,0 +1,138 @@
+"""Compiled MuJoCo passive-force callbacks for the C twins: the one-sided tyre, evaluated at every RK4 stage.
+
+MuJoCo has no element for a one-sided spring-damper, so the twins of the quarter car and of Nikravesh's double
+A-arm add it in ``mjcb_passive``. A Python callback costs interpreter time per stage and cannot run on the worker
+threads of ``mujoco.rollout`` or ``mujoco.batch`` (which require C callbacks); this module compiles the same law in C
+(once per process, with the system's C compiler, against the headers and library shipped in the mujoco wheel) and
+installs it through ``ctypes`` as MuJoCo's engineers recommend. The force law is the one of
+:func:`particlesim.mechanism.forces.point_forces`:
+
+    d = p . n - ground - radius;   f = -(k d + c v . n) n   while d < 0,
+
+applied at a site through its translational Jacobian. Parameters are per model (up to :data:`MAX_TYRES` tyres),
+set with :func:`set_tyres`; the callback itself is stateless (it allocates on MuJoCo's own stack), so it is safe
+on every thread.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+__all__ = ["MAX_TYRES", "set_tyres", "install_tyres", "uninstall", "compiled_library"]
+
+MAX_TYRES = 8
+
+_SOURCE = r"""
+#include <mujoco/mujoco.h>
+
+#define MAX_TYRES 8
+static int n_tyres = 0;
+static int tyre_site[MAX_TYRES];
+static double tyre_par[MAX_TYRES][7];  /* nx ny nz ground radius k c */
+
+void ps_set_tyre(int i, int site, double nx, double ny, double nz, double ground, double radius, double k,
+                 double c) {
+  tyre_site[i] = site;
+  tyre_par[i][0] = nx; tyre_par[i][1] = ny; tyre_par[i][2] = nz;
+  tyre_par[i][3] = ground; tyre_par[i][4] = radius; tyre_par[i][5] = k; tyre_par[i][6] = c;
+}
+
+void ps_set_count(int n) { n_tyres = n; }
+
+void ps_tyre_passive(const mjModel* m, mjData* d) {
+  int nv = m->nv;
+  mj_markStack(d);
+  mjtNum* jac = mj_stackAllocNum(d, 3 * nv);
+  for (int i = 0; i < n_tyres; i++) {
+    const double* p = tyre_par[i];
+    const mjtNum* x = d->site_xpos + 3 * tyre_site[i];
+    double dist = p[0] * x[0] + p[1] * x[1] + p[2] * x[2] - p[3] - p[4];
+    if (dist >= 0.0) continue;
+    mj_jacSite(m, d, jac, NULL, tyre_site[i]);
+    double vn = 0.0;
+    for (int j = 0; j < nv; j++) {
+      double jn = p[0] * jac[j] + p[1] * jac[nv + j] + p[2] * jac[2 * nv + j];
+      vn += jn * d->qvel[j];
+    }
+    double f = -(p[5] * dist + p[6] * vn);
+    for (int j = 0; j < nv; j++) {
+      double jn = p[0] * jac[j] + p[1] * jac[nv + j] + p[2] * jac[2 * nv + j];
+      d->qfrc_passive[j] += jn * f;
+    }
+  }
+  mj_freeStack(d);
+}
+"""
+
+_LIB: ctypes.CDLL | None = None
+
+
+def _mujoco_library() -> Path:
+    root = Path(mujoco.__file__).parent
+    found = sorted(root.glob("libmujoco.so*")) + sorted(root.glob("libmujoco*.dylib"))
+    if not found:
+        raise RuntimeError(f"no MuJoCo shared library in {root}")
+    return found[0]
+
+
+def compiled_library() -> ctypes.CDLL:
+    """The compiled callback library (built on first use into a per-user cache directory)."""
+    global _LIB
+    if _LIB is not None:
+        return _LIB
+    lib = _mujoco_library()
+    include = Path(mujoco.__file__).parent / "include"
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "particlesim"
+    cache.mkdir(parents=True, exist_ok=True)
+    tag = f"{mujoco.__version__}-{hashlib.sha256(_SOURCE.encode()).hexdigest()[:12]}"
+    out = cache / f"ps_tyre_{tag}.so"
+    if not out.exists():
+        with tempfile.TemporaryDirectory() as tmp:
+            src = Path(tmp) / "ps_tyre.c"
+            src.write_text(_SOURCE)
+            tmp_out = Path(tmp) / out.name
+            cc = os.environ.get("CC", "cc")
+            cmd = [cc, "-O2", "-shared", "-fPIC", f"-I{include}", str(src), "-o", str(tmp_out),
+                   f"-L{lib.parent}", f"-l:{lib.name}", f"-Wl,-rpath,{lib.parent}"]
+            res = subprocess.run(cmd, capture_output=True, text=True)
+            if res.returncode:
+                raise RuntimeError(f"compiling the MuJoCo tyre callback failed ({' '.join(cmd)}):\n{res.stderr}")
+            os.replace(tmp_out, out)
+    _LIB = ctypes.CDLL(str(out))
+    return _LIB
+
+
+def set_tyres(tyres) -> None:
+    """``tyres``: ``(site id, normal (3,), ground, radius, stiffness, damping)`` per tyre."""
+    lib = compiled_library()
+    if len(tyres) > MAX_TYRES:
+        raise ValueError(f"at most {MAX_TYRES} tyres, got {len(tyres)}")
+    for i, (site, normal, ground, radius, k, c) in enumerate(tyres):
+        n = np.asarray(normal, dtype=float)
+        lib.ps_set_tyre(ctypes.c_int(i), ctypes.c_int(int(site)), *(ctypes.c_double(float(v)) for v in
+                                                  (n[0], n[1], n[2], ground, radius, k, c)))
+    lib.ps_set_count(ctypes.c_int(len(tyres)))
+
+
+_CALLBACK = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p)
+
+
+def install_tyres(tyres) -> None:
+    """Set the tyres and install the compiled callback as ``mjcb_passive`` (global to the process, as MuJoCo's
+    callbacks are). The bindings take a ctypes function and install its C address, so MuJoCo calls the compiled
+    code directly, on any thread."""
+    set_tyres(tyres)
+    mujoco.set_mjcb_passive(ctypes.cast(compiled_library().ps_tyre_passive, _CALLBACK))
+
+
+def uninstall() -> None:
+    """Remove the passive callback."""
+    mujoco.set_mjcb_passive(None)
