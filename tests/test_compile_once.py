@@ -1,0 +1,147 @@
+"""The public rollouts compile once per structure and solver settings (a trace counter, not a timer), and the shared
+integration core refuses bad settings the same way for trees and mechanisms."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from particlesim import _ode
+from particlesim.errors import ModelError
+from particlesim.inertia import RigidInertia
+from particlesim.mechanism import MechanismBuilder, simulate_mechanism
+from particlesim.simulate import simulate
+
+TWO_LINK_URDF = """<?xml version="1.0"?>
+<robot name="two_link">
+  <link name="world"/>
+  <link name="a"><inertial><origin xyz="0 -0.25 0"/><mass value="1.3"/>
+    <inertia ixx="0.030" ixy="0" ixz="0" iyy="0.004" iyz="0" izz="0.029"/></inertial></link>
+  <link name="b"><inertial><origin xyz="0 -0.2 0"/><mass value="0.8"/>
+    <inertia ixx="0.012" ixy="0" ixz="0" iyy="0.002" iyz="0" izz="0.011"/></inertial></link>
+  <joint name="j1" type="revolute"><parent link="world"/><child link="a"/><axis xyz="0 0 1"/>
+    <limit effort="1" lower="-3" upper="3" velocity="1"/></joint>
+  <joint name="j2" type="revolute"><parent link="a"/><child link="b"/><origin xyz="0 -0.5 0"/><axis xyz="1 0 0"/>
+    <limit effort="1" lower="-3" upper="3" velocity="1"/></joint>
+</robot>
+"""
+
+
+def _rod(p, q, m):
+    p, q = np.asarray(p, float), np.asarray(q, float)
+    u = (q - p) / np.linalg.norm(q - p)
+    ell = np.linalg.norm(q - p)
+    return RigidInertia(m, (p + q) / 2, m * ell**2 / 12 * (np.eye(3) - np.outer(u, u)), degenerate_ok=True)
+
+
+@pytest.fixture(scope="module")
+def pendulum():
+    """Two rods and a spring: a small mechanism whose parameters all have names."""
+    mb = MechanismBuilder(gravity=(0, 0, -9.81))
+    mb.ground("O", (0, 0, 0))
+    mb.particle("A", (0.5, 0, 0))
+    mb.particle("B", (1.0, 0, 0.2))
+    mb.body("link1", _rod((0, 0, 0), (0.5, 0, 0), 1.0), ["O", "A"])
+    mb.body("link2", _rod((0.5, 0, 0), (1.0, 0, 0.2), 0.7), ["A", "B"])
+    mb.spring_damper("spring", "O", "B", 20.0, 0.5, 0.8)
+    mech, x0 = mb.build()
+    return mech, jnp.asarray(x0)
+
+
+@pytest.fixture(scope="module")
+def two_link(tmp_path_factory):
+    from particlesim.tree import load_urdf
+
+    p = tmp_path_factory.mktemp("urdf") / "two_link.urdf"
+    p.write_text(TWO_LINK_URDF)
+    return load_urdf(p, gravity=(0.0, -9.81, 0.0))
+
+
+def _tree_dynamics(model, q, qd, tau):
+    from particlesim.tree import forward_dynamics
+
+    return forward_dynamics(model, q, qd, tau)
+
+
+class _PD(eqx.Module):
+    """A control with parameters of its own: its arrays are traced, so new gains reuse the compiled rollout."""
+
+    kp: jax.Array
+    kd: jax.Array
+
+    def __call__(self, t, q, qd, params):
+        return -self.kp * q - self.kd * qd
+
+
+def test_mechanism_rollout_compiles_once(pendulum):
+    mech, x0 = pendulum
+    xd0 = jnp.zeros_like(x0)
+    before = _ode.TRACES["simulate_mechanism"]
+    first = simulate_mechanism(mech, x0, xd0, 0.0, 0.2, solver="tsit5", rtol=1e-8, saveat_ts=np.linspace(0, 0.2, 5))
+    assert _ode.TRACES["simulate_mechanism"] == before + 1
+    changed = mech.with_params(spring={"spring": {"stiffness": 35.0, "damping": 0.9}},
+                               body={"link2": {"mass": 0.9}}, gravity=(0.0, 0.0, -9.7))
+    second = simulate_mechanism(changed, x0, xd0.at[4].set(0.3), 0.1, 0.4, solver="tsit5", rtol=1e-6, atol=1e-9,
+                                saveat_ts=np.linspace(0.1, 0.4, 5))
+    assert _ode.TRACES["simulate_mechanism"] == before + 1  # new parameters, state, times, tolerances: no retrace
+    assert not np.allclose(first.q[-1], second.q[-1])  # and the new values did take effect
+    simulate_mechanism(mech, x0, xd0, 0.0, 0.2, solver="dopri5")  # new settings: one new compile
+    assert _ode.TRACES["simulate_mechanism"] == before + 2
+
+
+def test_tree_rollout_compiles_once(two_link):
+    q0, qd0 = jnp.array([0.3, -0.2]), jnp.zeros(2)
+    before = _ode.TRACES["simulate"]
+    a = simulate(_tree_dynamics, two_link, q0, qd0, 0.0, 0.2, control=_PD(jnp.asarray(2.0), jnp.asarray(0.1)))
+    b = simulate(_tree_dynamics, two_link.with_params(inertia=two_link.inertia * 1.1), q0 * 0.5, qd0, 0.0, 0.3,
+                 control=_PD(jnp.asarray(5.0), jnp.asarray(0.3)), rtol=1e-6)
+    assert _ode.TRACES["simulate"] == before + 1
+    assert not np.allclose(a.q[-1], b.q[-1])
+
+
+def test_mechanism_parameters_by_name(pendulum):
+    mech, _ = pendulum
+    m = mech.with_params(spring={"spring": {"free_length": 0.9}}, body={"link1": {"com": (0.25, 0.0, 0.01)}})
+    assert float(m.spring_free_length[0]) == 0.9 and float(mech.spring_free_length[0]) == 0.8
+    np.testing.assert_array_equal(m.body_com[0], [0.25, 0.0, 0.01])
+    with pytest.raises(KeyError, match="no spring named 'nope'"):
+        mech.with_params(spring={"nope": {"stiffness": 1.0}})
+    with pytest.raises(KeyError, match="body 'link1' has no parameter 'colour'"):
+        mech.with_params(body={"link1": {"colour": 1.0}})
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"rtol": -1e-6}, "rtol must be positive"),
+    ({"atol": -1.0}, "atol must be non-negative"),
+    ({"t1": -0.1}, "t1 must be greater than t0"),
+    ({"max_steps": 0}, "max_steps must be a positive integer"),
+    ({"dt0": 0.0}, "dt0 must be positive"),
+    ({"saveat_ts": [0.0, 0.3]}, "saveat_ts must be non-decreasing times inside"),
+    ({"solver": "rk45"}, "unknown solver 'rk45'"),
+])
+def test_bad_settings_are_refused_alike(pendulum, two_link, kwargs, match):
+    mech, x0 = pendulum
+    kw = {"t1": 0.2, **kwargs}
+    t1 = kw.pop("t1")
+    with pytest.raises(ValueError, match=match):
+        simulate_mechanism(mech, x0, jnp.zeros_like(x0), 0.0, t1, **kw)
+    with pytest.raises(ValueError, match=match):
+        simulate(_tree_dynamics, two_link, jnp.zeros(2), jnp.zeros(2), 0.0, t1, **kw)
+
+
+def test_non_finite_parameters_raise_model_error_in_both(pendulum, two_link):
+    mech, x0 = pendulum
+    with pytest.raises(ModelError, match="simulate_mechanism: parameter spring 'spring' damping is not finite"):
+        simulate_mechanism(mech.with_params(spring={"spring": {"damping": jnp.nan}}), x0, jnp.zeros_like(x0), 0.0, 0.1)
+    with pytest.raises(ModelError, match=r"simulate: parameter \.inertia is not finite"):
+        simulate(_tree_dynamics, two_link.with_params(inertia=two_link.inertia * jnp.nan), jnp.zeros(2), jnp.zeros(2),
+                 0.0, 0.1)
+
+
+def test_traced_bad_times_raise_at_run_time(pendulum):
+    mech, x0 = pendulum
+    f = jax.jit(lambda t1: simulate_mechanism(mech, x0, jnp.zeros_like(x0), 0.0, t1).q)
+    assert np.all(np.isfinite(np.asarray(f(jnp.asarray(0.05)))))
+    with pytest.raises(Exception, match="t1 <= t0"):
+        jax.block_until_ready(f(jnp.asarray(-0.05)))
