@@ -4,7 +4,7 @@ Every scene is run by our diffrax solvers over a sweep of tolerances and by its 
 of fixed steps, all against one reference trajectory (ours, Dopri8 at a tight tolerance, float64). Each run is one
 *row*:
 
-    method, setting, wall_s (median, compile excluded), compile_s, error (final state), max_error (largest
+    method, setting, wall_s (least of repeats, compile excluded), compile_s, error (final state), max_error (largest
     error over the saved trajectory), steps, rejected, plus scene-specific extras.
 
 :func:`sweep_ours` and :func:`sweep_fixed` produce rows; :func:`finish` adds the headline (per method, the cheapest
@@ -13,7 +13,7 @@ run whose final error reaches the target) and the speed ratios at equal error; :
 
 :func:`compile_ours` compiles one solver's run (tolerances traced); pass the same ``compiled`` dict to
 :func:`sweep_ours` so the reference (usually Dopri8 at a tight tolerance) and the sweep share one compile.
-Added later, keyword-only and optional: the earlier calls are unchanged. Wall times: the median over up to
+Added later, keyword-only and optional: the earlier calls are unchanged. Wall times: the least over up to
 ``repeat`` runs, the first included (functions are compiled beforehand), fewer once a row has taken
 ``ROW_BUDGET_S``; :func:`headline_notes` states the issue's goals (≥ 2× faster than MJX, no slower than MuJoCo C
 at the target error) as met or missed.
@@ -32,7 +32,8 @@ import numpy as np
 
 from ._common import RESULTS, environment, timed
 
-__all__ = ["Errors", "compile_ours", "headline", "headline_notes", "sweep_ours", "sweep_fixed", "finish", "write", "markdown", "fmt_time"]
+__all__ = ["Errors", "compile_ours", "headline", "headline_notes", "sweep_ours", "sweep_fixed", "sweep_public",
+           "sweep_rollout", "finish", "write", "markdown", "fmt_time"]
 
 
 class Errors:
@@ -43,27 +44,35 @@ class Errors:
         self.ref = np.asarray(reference, dtype=float)
 
     def __call__(self, traj) -> dict:
-        d = np.abs(np.asarray(traj, dtype=float) - self.ref)
+        t = np.asarray(traj, dtype=float)
+        d = np.abs(t - self.ref)
         if not np.all(np.isfinite(d)):
+            if np.all(np.isnan(t[:-1])) and np.all(np.isfinite(d[-1])):  # final state only (steps off the grid)
+                return {"error": float(np.max(d[-1])), "max_error": float("nan")}
             return {"error": float("inf"), "max_error": float("inf")}
         return {"error": float(np.max(d[-1])), "max_error": float(np.max(d))}
 
 
 #: A row's repeats stop once they have taken this long (the first run counts): slow rows are timed fewer times.
 ROW_BUDGET_S = 10.0
+#: Short runs are repeated at least until they have taken this long in all (up to MAX_REPEAT times).
+MIN_TOTAL_S = 0.3
+MAX_REPEAT = 30
 
 
 def _time(fn: Callable[[], object], repeat: int, block: Callable) -> tuple[object, float]:
-    """``(output of the first run, median wall time over up to `repeat` runs)``; the first run is the warm-up
-    and the result (compiled functions are compiled beforehand), and is timed as well: a run of an already
-    compiled function is as good a sample as any other. Repeats stop after ``ROW_BUDGET_S`` seconds."""
+    """``(output of the first run, least wall time over the repeats)``. The machine is shared and its load
+    fluctuates; the least time is the least disturbed run, and every method (ours, MuJoCo C, MJX) is timed the
+    same way. At least ``repeat`` runs, more for short ones (until ``MIN_TOTAL_S``, at most ``MAX_REPEAT``), fewer
+    once a row has taken ``ROW_BUDGET_S``."""
     times, out = [], None
-    while len(times) < repeat and (not times or sum(times) < ROW_BUDGET_S):
+    while (len(times) < repeat or (sum(times) < MIN_TOTAL_S and len(times) < MAX_REPEAT)) and \
+            (not times or sum(times) < ROW_BUDGET_S):
         t = time.perf_counter()
         o = block(fn())
         times.append(time.perf_counter() - t)
         out = o if out is None else out
-    return out, float(np.median(times))
+    return out, float(np.min(times))
 
 
 def compile_ours(make: Callable[[str], Callable], args: Sequence, solver: str, compiled: dict | None = None, *,
@@ -118,20 +127,88 @@ def sweep_fixed(method: str, dts: Iterable[float], run: Callable[[float], object
     return rows
 
 
+def sweep_public(label: str, solvers: Iterable[str], rtols: dict | Sequence, run: Callable, errors: Errors, *,
+                 repeat: int = 5, log: Callable = print) -> list[dict]:
+    """Rows of ours through the public entry point, as a user calls it (no jit of our own: the entry point caches
+    its compiled program per structure and settings).
+
+    ``run(solver, rtol, saves)``: with ``saves=True`` the observed trajectory at the save times (untimed; it gives
+    both errors), with ``saves=False`` the same rollout saving its end state only, which is what is timed (the
+    measure is the final state, as for MuJoCo's rollout). Each returns ``(traj, steps, rejected)``. The first timed
+    call of each solver compiles; its extra time over the least is the row's ``compile_s``."""
+    rows = []
+    for solver in solvers:
+        sweep = rtols[solver] if isinstance(rtols, dict) else rtols
+        comp = None
+        for rtol in sweep:
+            full = run(solver, rtol, True)
+            t = time.perf_counter()
+            run(solver, rtol, False)
+            t_first = time.perf_counter() - t
+            _, wall = _time(lambda: run(solver, rtol, False), repeat, lambda o: o)
+            if comp is None:
+                comp = max(t_first - wall, 0.0)
+            rows.append({"method": f"{label} {solver}", "setting": f"rtol {rtol:g}", "wall_s": wall,
+                         **errors(full[0]), "steps": int(full[1]), "rejected": int(full[2]), "compile_s": comp})
+            log(rows[-1])
+    return rows
+
+
+def sweep_rollout(method: str, dts: Iterable[float], make: Callable[[float], tuple], errors: Errors, t_end: float,
+                  *, repeat: int = 5, log: Callable = print, setting: Callable[[float], str] | None = None,
+                  extra: Callable | None = None) -> list[dict]:
+    """Rows of a MuJoCo C twin through its native loop. ``make(dt) -> (rollout, to_traj)`` with ``rollout`` a
+    :class:`benchmarks._native.Rollout` (only its call is timed) and ``to_traj(states)`` the observed trajectory at
+    the save times. Runs whose states are not finite (unstable at that step) get an infinite error."""
+    rows = []
+    for dt in dts:
+        ro, to_traj = make(dt)
+        states, wall = ro.timed(repeat)
+        traj = to_traj(states) if np.all(np.isfinite(states)) else np.full(1, np.inf)
+        errs = errors(traj) if np.all(np.isfinite(traj)) and np.shape(traj) == errors.ref.shape else \
+            {"error": float("inf"), "max_error": float("inf")}
+        rows.append({"method": method, "setting": setting(dt) if setting else f"dt {dt:g}", "wall_s": wall,
+                     **errs, "steps": int(round(t_end / dt)), "rejected": 0, "compile_s": None, "dt": dt,
+                     **(extra(ro, states) if extra else {})})
+        log(rows[-1])
+    return rows
+
+
+def _interpolated(rows: list[dict], ok: dict, target: float, key: str) -> dict:
+    """For a fixed-step method: the wall time at exactly ``target`` error, interpolated in log-log between the
+    cheapest passing run and the next cheaper (failing, finite) run, so the baseline is not charged for the
+    coarseness of the step grid. Returns ``ok`` with ``interp_wall_s`` added (its own wall time if no bracket)."""
+    cheaper = [r for r in rows if r["wall_s"] < ok["wall_s"] and np.isfinite(r[key]) and r[key] > target
+               and r.get("dt", 0) > ok.get("dt", 0)]
+    out = dict(ok, interp_wall_s=ok["wall_s"])
+    if cheaper:
+        c = max(cheaper, key=lambda r: r["wall_s"])
+        le0, le1 = np.log(ok[key]), np.log(c[key])
+        if le1 > le0 and ok[key] > 0:
+            w = (np.log(target) - le0) / (le1 - le0)
+            out["interp_wall_s"] = float(np.exp((1 - w) * np.log(ok["wall_s"]) + w * np.log(c["wall_s"])))
+    return out
+
+
 def headline(rows: list[dict], target: float, key: str = "error") -> dict:
     """Per method, the cheapest run whose ``key`` error ("error": final state, "max_error": over the run) reaches
-    ``target``; our best of those, and the ratios of MuJoCo C's and MJX's best to it (> 1: ours faster)."""
+    ``target`` (fixed-step MuJoCo rows also carry ``interp_wall_s``, their time interpolated to the target, which
+    the ratios use); our best of those, and the ratios of MuJoCo C's and MJX's best to it (> 1: ours faster)."""
     head = {}
     for method in dict.fromkeys(r["method"] for r in rows):
-        ok = [r for r in rows if r["method"] == method and r[key] <= target]
-        head[method] = min(ok, key=lambda r: r["wall_s"]) if ok else None
+        mine = [r for r in rows if r["method"] == method]
+        ok = [r for r in mine if np.isfinite(r[key]) and r[key] <= target]
+        best = min(ok, key=lambda r: r["wall_s"]) if ok else None
+        if best is not None and "dt" in best:
+            best = _interpolated(mine, best, target, key)
+        head[method] = best
     ours = [r for m, r in head.items() if m.startswith("ours") and r]
     best = min(ours, key=lambda r: r["wall_s"]) if ours else None
     ratios = {}
     for peer in ("MuJoCo C", "MJX"):
         cand = [r for m, r in head.items() if m.startswith(peer) and r]
-        p = min(cand, key=lambda r: r["wall_s"]) if cand else None
-        ratios[peer] = (p["wall_s"] / best["wall_s"]) if (p and best) else None
+        p = min(cand, key=lambda r: r.get("interp_wall_s", r["wall_s"])) if cand else None
+        ratios[peer] = (p.get("interp_wall_s", p["wall_s"]) / best["wall_s"]) if (p and best) else None
     return {"headline": head, "ours_best": best, "speedup_vs": ratios}
 
 
@@ -204,7 +281,10 @@ def fmt_time(s: float) -> str:
 
 def _fmt(r: dict, unit: str) -> str:
     comp = "" if r.get("compile_s") is None else f"{r['compile_s']:.1f} s"
-    return (f"| {r['method']} | {r['setting']} | {fmt_time(r['wall_s'])} | {r['error']:.1e} | "
+    wall = fmt_time(r["wall_s"])
+    if r.get("interp_wall_s") is not None and r["interp_wall_s"] != r["wall_s"]:
+        wall += f" ({fmt_time(r['interp_wall_s'])} at the target)"
+    return (f"| {r['method']} | {r['setting']} | {wall} | {r['error']:.1e} | "
             f"{r['max_error']:.1e} | {r['steps']} | {comp} |")
 
 
@@ -214,7 +294,7 @@ def markdown(results: dict, *, all_rows: bool = False) -> str:
     lines = [f"### {results['scene']}: work against precision ({results['t_end_s']:g} s)", "",
              f"{env['cpu']}, {env['cpu_count']} cores, load average {load:.1f} (1 min), {env['date']}. "
              f"Error = {results['error_what']} [{unit}], against {results['reference']['what']}. Wall time per "
-             f"run (median of repeats), compile excluded and listed separately; benchmark took "
+             f"run (least of repeats), compile excluded and listed separately; benchmark took "
              f"{results['elapsed_s'] / 60:.1f} min.", ""]
     best, sp = results["ours_best"], results["speedup_vs"]
     if best:

@@ -129,7 +129,7 @@ def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
         field, (x0, xd0), [leaves[i] for i in arrays], t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
         cfg=cfg, projection=projection if stabilise else None)
     if stabilise:
-        xs, xds = jax.vmap(lambda a, b: projection((a, b), [leaves[i] for i in arrays]))(xs, xds)
+        xs, xds = jax.lax.map(lambda ab: projection(ab, [leaves[i] for i in arrays]), (xs, xds))
     return Solution(ts=ts_, q=xs, qd=xds, steps=steps, rejected=rejected, status=result, ok=ok)
 
 

@@ -79,9 +79,10 @@ class LinearRows:
         return np.stack([self.a, self.b], axis=1).reshape(-1, 2).astype(int)
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class Topology:
-    """Everything static about a mechanism (hashable; equal topologies share compiled code)."""
+    """Everything static about a mechanism (hashable; equal topologies share compiled code). The hash is computed
+    once (the compile cache hashes it on every call)."""
 
     particle_names: tuple[str, ...]
     free: tuple[int, ...]  # global indices of the free particles, in state order
@@ -98,6 +99,20 @@ class Topology:
     tyre_points: tuple[int, ...]
     tyre_normals: tuple[tuple[float, float, float], ...]
     saddle_point: bool = False  # the mass matrix is singular (a free particle in no body): solve the full KKT
+
+    def _key(self) -> tuple:
+        return tuple(getattr(self, f.name) for f in dataclasses.fields(self))
+
+    def __eq__(self, other) -> bool:
+        return self is other or (isinstance(other, Topology) and hash(self) == hash(other)
+                                 and self._key() == other._key())
+
+    def __hash__(self) -> int:
+        h = self.__dict__.get("_hash")
+        if h is None:
+            h = hash(self._key())
+            object.__setattr__(self, "_hash", h)
+        return h
 
     @property
     def n_particles(self) -> int:
