@@ -9,9 +9,10 @@ installs it through ``ctypes`` as MuJoCo's engineers recommend. The force law is
 
     d = p . n - ground - radius;   f = -(k d + c v . n) n   while d < 0,
 
-applied at a site through its translational Jacobian. Parameters are per model (up to :data:`MAX_TYRES` tyres),
-set with :func:`set_tyres`; the callback itself is stateless (it allocates on MuJoCo's own stack), so it is safe
-on every thread.
+applied at a site through its translational Jacobian. Geometry and default constants (up to :data:`MAX_TYRES`
+tyres) are set with :func:`set_tyres`; a model with a ``numeric`` element ``i`` of size 2 overrides tyre ``i``'s
+stiffness and damping with it (:func:`tyre_numeric` writes the element), so every model of a batch can carry its
+own tyre. The callback itself is stateless (it allocates on MuJoCo's own stack), so it is safe on every thread.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-__all__ = ["MAX_TYRES", "set_tyres", "install_tyres", "uninstall", "compiled_library"]
+__all__ = ["MAX_TYRES", "set_tyres", "install_tyres", "uninstall", "compiled_library", "tyre_numeric"]
 
 MAX_TYRES = 8
 
@@ -52,7 +53,13 @@ void ps_tyre_passive(const mjModel* m, mjData* d) {
   mj_markStack(d);
   mjtNum* jac = mj_stackAllocNum(d, 3 * nv);
   for (int i = 0; i < n_tyres; i++) {
-    const double* p = tyre_par[i];
+    double p[7];
+    for (int k = 0; k < 7; k++) p[k] = tyre_par[i][k];
+    /* per-model stiffness and damping: numeric i of the model, if it has one of size >= 2 */
+    if (m->nnumeric > i && m->numeric_size[i] >= 2) {
+      p[5] = m->numeric_data[m->numeric_adr[i]];
+      p[6] = m->numeric_data[m->numeric_adr[i] + 1];
+    }
     const mjtNum* x = d->site_xpos + 3 * tyre_site[i];
     double dist = p[0] * x[0] + p[1] * x[1] + p[2] * x[2] - p[3] - p[4];
     if (dist >= 0.0) continue;
@@ -136,3 +143,13 @@ def install_tyres(tyres) -> None:
 def uninstall() -> None:
     """Remove the passive callback."""
     mujoco.set_mjcb_passive(None)
+
+
+def tyre_numeric(xml: str, stiffness: float, damping: float) -> str:
+    """MJCF text with a ``numeric`` element holding the tyre's stiffness and damping (tyre 0), inserted before
+    ``</mujoco>``; change them per model in ``MjModel.numeric_data[0:2]``."""
+    element = f'<custom><numeric name="ps_tyre0" data="{float(stiffness)!r} {float(damping)!r}"/></custom>'
+    head, sep, tail = xml.rpartition("</mujoco>")
+    if not sep:
+        raise ValueError("not an MJCF document: no </mujoco>")
+    return head + element + sep + tail
