@@ -1,6 +1,7 @@
 """Mechanisms in particle Cartesian coordinates (Attia): bodies as equivalent particles, joints as shared
 particles, loops closed by cut-joint constraints, force elements, and their simulation."""
 
+from .assembly import Assembly, assemble
 from .builder import MechanismBuilder
 from .chain import ChainPlan, chain_accelerations, chain_mass_blocks, chain_plan
 from .constraints import constraint_gamma, constraint_jacobian, constraint_labels, constraints, velocity_constraints
@@ -18,6 +19,8 @@ __all__ = [
     "Prepared",
     "prepare",
     "MechanismBuilder",
+    "Assembly",
+    "assemble",
     "constraints",
     "constraint_jacobian",
     "constraint_gamma",

@@ -157,8 +157,14 @@ class MechanismBuilder:
         self._applied.append((name, "torque", body, fn))
 
     # ---- build ----
-    def build(self, *, dof: Optional[int] = None) -> tuple[Mechanism, np.ndarray]:
+    def build(self, *, dof: Optional[int] = None, assemble: bool = False,
+              hold: Sequence = ()) -> tuple[Mechanism, np.ndarray]:
         """Check everything and return the mechanism and its assembly state ``x0`` ``(3F,)``.
+
+        With ``assemble=True`` approximate positions (rounded data, a loop drawn open) are first corrected to the
+        nearest consistent configuration (:func:`~.assembly.assemble`; body shapes are kept as given, joints and
+        loops closed), holding the particles or coordinates listed in ``hold`` (names or ``(name, 'x'|'y'|'z')``);
+        the correction is left in ``self.assembly`` (an :class:`~.assembly.Assembly`).
 
         Raises :class:`ModelError` naming the culprit for: unknown names, a dangling particle (in no body and no
         joint), violated constraints at the given positions, redundant (over-constrained) constraints, a
@@ -166,7 +172,10 @@ class MechanismBuilder:
         that carries no mass. Singular particle placements and non-physical inertias are refused by
         :mod:`particlesim.particles` and :mod:`particlesim.inertia` with the body's name.
         """
-        return _Build(self).run(dof)
+        bd = _Build(self)
+        out = bd.run(dof, assemble, tuple(hold))
+        self.assembly = bd.assembly
+        return out
 
 
 class _Build:
@@ -193,7 +202,7 @@ class _Build:
         self.dot: list[tuple] = []  # (a, b, c, d, scale, kappa, label)
         self.lin: list[tuple] = []  # (a, b, axis, label)
 
-    def run(self, dof):
+    def run(self, dof, assemble=False, hold=()):
         self.bodies()
         plans = self.joint_plans()  # may add hidden ground particles (ground-side joint directions)
         self.points()
@@ -202,8 +211,33 @@ class _Build:
         self.check_dangling()
         mech = self.mechanism()
         x0 = np.stack([self.pos[i] for i in mech.topo.free]).reshape(-1) if mech.topo.free else np.zeros(0)
+        self.assembly = None
+        if assemble or hold:
+            x0 = self.assemble(mech, x0, hold)
         _check(self, mech, x0, dof)
         return mech, x0
+
+    def assemble(self, mech: Mechanism, x0: np.ndarray, hold) -> np.ndarray:
+        """Close joints and loops from approximate positions (NumPy Gauss-Newton on the typed rows); moves the
+        free particles and the points they carry."""
+        from .assembly import ASSEMBLE_RTOL, gauss_newton, held_columns, report
+
+        topo = mech.topo
+        wk = _np_point_weights(self, topo)
+        pts0 = np.asarray(self.point_world, dtype=float).reshape(-1, 3)
+        kappa = np.asarray(mech.dot_kappa)
+        size = max(float(np.ptp(pts0, axis=0).max()) if len(pts0) else 0.0, 1e-12)
+
+        def rows(x):
+            return _np_rows(topo, kappa, pts0 + wk @ (x - x0).reshape(-1, 3), wk)
+
+        held = held_columns(topo.particle_names, topo.free, hold)
+        x, res, it = gauss_newton(rows, x0, held, ASSEMBLE_RTOL * size * max(size, 1.0), topo.row_labels())
+        self.point_world = list(pts0 + wk @ (x - x0).reshape(-1, 3))
+        for c, i in enumerate(topo.free):
+            self.pos[i] = x[3 * c:3 * c + 3]
+        self.assembly = report(topo.particle_names, topo.free, x0, x, res, it)
+        return x
 
     # -- stages --
     def particle(self, n: str, what: str) -> int:
@@ -531,7 +565,8 @@ def _check(bd: _Build, mech: Mechanism, x0: np.ndarray, dof: Optional[int]) -> N
     bad = [(labels[i], float(res[i])) for i in np.flatnonzero(np.abs(res) > ASSEMBLY_RTOL * size * max(size, 1.0))]
     if bad:
         raise ModelError("initial positions violate constraints: " +
-                         ", ".join(f"{lab} (residual {v:.3g})" for lab, v in bad[:6]))
+                         ", ".join(f"{lab} (residual {v:.3g})" for lab, v in bad[:6]) +
+                         "; for approximate data build with assemble=True (closes joints and loops, keeps bodies)")
     for name, (a, b) in zip(topo.spring_names, topo.spring_points):
         if np.linalg.norm(pts[a] - pts[b]) <= ASSEMBLY_RTOL * size:
             raise ModelError(f"spring '{name}': its end points coincide (zero length): its direction is undefined")
