@@ -50,6 +50,8 @@ BATCH_T = 1.0
 CHECKED = 16
 CHAIN_COMPILE_N = (4, 8, 16, 32, 64)
 CHAIN_STEP_N = (8, 16, 32, 64, 128)
+#: long enough for tens of steps, so the fixed cost of a call does not flatten the slope
+CHAIN_STEP_T = 0.5
 
 
 def _first_and_cached(call) -> tuple[float, float]:
@@ -225,7 +227,7 @@ def chain_steps() -> list[dict]:
         for solve in ("chain", "dense"):
             if solve == "dense" and n > 64:
                 continue
-            call = lambda: simulate_mechanism(mech, x0, jnp.zeros_like(x0), 0.0, 0.05, solver="tsit5",  # noqa: E731
+            call = lambda: simulate_mechanism(mech, x0, jnp.zeros_like(x0), 0.0, CHAIN_STEP_T, solver="tsit5",  # noqa: E731
                                               rtol=1e-8, atol=1e-10, solve=solve)
             sol = call()
             _, wall = _time(lambda: call().q.block_until_ready(), 3, lambda o: o)
@@ -333,6 +335,15 @@ def markdown(res: dict) -> str:
     return "\n".join(lines)
 
 
+def rerun_chain_steps() -> dict:
+    """Redo only the chain-step part of the saved results (``python -m benchmarks.mechanism_engine chains``)."""
+    res = json.loads((RESULTS / f"{NAME}.json").read_text())
+    res["chain_steps"] = chain_steps()
+    ch = [r for r in res["chain_steps"] if r["solve"] == "chain"]
+    res["step_slope_chain"] = _slope([r["n"] for r in ch], [r["per_step_s"] for r in ch])
+    return res
+
+
 def main() -> dict:
     res = run()
     write(res)
@@ -341,4 +352,11 @@ def main() -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if sys.argv[1:] == ["chains"]:
+        r = rerun_chain_steps()
+        write(r)
+        print(markdown(r))
+    else:
+        main()
