@@ -183,6 +183,17 @@ def check_times(t0, t1, rtol, atol, dt0, ts):
     return bad
 
 
+def times(t0, t1, rtol, atol, dt0, saveat_ts):
+    """The time and tolerance arguments of a public rollout as float64 (tracers kept), checked by
+    :func:`check_times`: ``(t0, t1, rtol, atol, dt0, ts, time_bad)``."""
+    t0_, t1_ = as_time("t0", t0), as_time("t1", t1)
+    rtol_, atol_ = as_time("rtol", rtol), as_time("atol", atol)
+    dt0_ = None if dt0 is None else as_time("dt0", dt0)
+    ts = None if saveat_ts is None else (saveat_ts if isinstance(saveat_ts, jax.core.Tracer)
+                                         else np.asarray(saveat_ts, dtype=np.float64))
+    return t0_, t1_, rtol_, atol_, dt0_, ts, check_times(t0_, t1_, rtol_, atol_, dt0_, ts)
+
+
 def as_state(value):
     """An initial-state vector as float64: jax arrays (and tracers) stay on the device, anything else becomes a
     NumPy array (passed to the compiled code without an extra device transfer)."""

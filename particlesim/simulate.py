@@ -123,12 +123,7 @@ def simulate(
     cfg = _ode.settings(solver=solver, adjoint=adjoint, max_steps=max_steps, throw=throw, progress=progress,
                         pid=pid, save_ts=saveat_ts is not None)
     _check_state(params, q0, qd0)
-    t0_, t1_ = _ode.as_time("t0", t0), _ode.as_time("t1", t1)
-    rtol_, atol_ = _ode.as_time("rtol", rtol), _ode.as_time("atol", atol)
-    dt0_ = None if dt0 is None else _ode.as_time("dt0", dt0)
-    ts = None if saveat_ts is None else (saveat_ts if isinstance(saveat_ts, jax.core.Tracer)
-                                         else np.asarray(saveat_ts, dtype=np.float64))
-    time_bad = _ode.check_times(t0_, t1_, rtol_, atol_, dt0_, ts)
+    t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
 
     def tau_of(q, qd):
         return jnp.zeros_like(q) if control is None else control(t0_, q, qd, params)

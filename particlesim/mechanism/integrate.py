@@ -24,7 +24,6 @@ from __future__ import annotations
 import diffrax
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax.scipy.linalg import cho_factor, cho_solve
 
 from .. import _ode
@@ -174,12 +173,7 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
         raise ModelError(f"state must be two vectors of length {mech.n_coords} (3 x free particles), "
                          f"got {x0.shape} and {xd0.shape}")
     _ode.check_state((x0, xd0), ("x0", "xd0"))
-    t0_, t1_ = _ode.as_time("t0", t0), _ode.as_time("t1", t1)
-    rtol_, atol_ = _ode.as_time("rtol", rtol), _ode.as_time("atol", atol)
-    dt0_ = None if dt0 is None else _ode.as_time("dt0", dt0)
-    ts = None if saveat_ts is None else (saveat_ts if isinstance(saveat_ts, jax.core.Tracer)
-                                         else np.asarray(saveat_ts, dtype=np.float64))
-    time_bad = _ode.check_times(t0_, t1_, rtol_, atol_, dt0_, ts)
+    t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
     _ode.check_finite("simulate_mechanism", parameter_groups(mech))  # eager, for concrete values
     return _simulate(mech, x0, xd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg, bool(stabilise),
                      float(baumgarte), solve)

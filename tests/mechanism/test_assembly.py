@@ -5,35 +5,12 @@ import numpy as np
 import pytest
 
 from particlesim.errors import ModelError
-from particlesim.inertia import RigidInertia
-from particlesim.mechanism import MechanismBuilder, assemble, constraints
+from particlesim.mechanism import assemble, constraints
 
 #: Closed-form four-bar positions against the assembled ones [m].
 POSITION_TOL = 1e-12
 #: Largest constraint residual after assembly (distance rows are squared lengths) [m, m^2].
 RESIDUAL_TOL = 1e-12
-
-
-def _rod(p, q, m=1.0):
-    p, q = np.asarray(p, float), np.asarray(q, float)
-    u = (q - p) / np.linalg.norm(q - p)
-    return RigidInertia(m, (p + q) / 2, m * np.sum((q - p) ** 2) / 12 * (np.eye(3) - np.outer(u, u)),
-                        degenerate_ok=True)
-
-
-def _four_bar(offset=0.0):
-    """Ground O, C; rods O-A (1 m), A-B (2 m), C-B2 (1 + offset); the cut joint B = B2 closes the loop."""
-    mb = MechanismBuilder(gravity=(0, -9.81, 0))
-    mb.ground("O", (0, 0, 0))
-    mb.ground("C", (2, 0, 0))
-    mb.particle("A", (0, 1, 0))
-    mb.particle("B", (2, 1, 0))
-    mb.particle("B2", (2, 1 + offset, 0))
-    mb.body("crank", _rod((0, 0, 0), (0, 1, 0)), ["O", "A"])
-    mb.body("coupler", _rod((0, 1, 0), (2, 1, 0)), ["A", "B"])
-    mb.body("rocker", _rod((2, 0, 0), (2, 1 + offset, 0)), ["C", "B2"])
-    mb.cut_joint("B", "B2", name="loop closure")
-    return mb
 
 
 def _circle_intersection(a, ra, c, rc, near):
@@ -48,9 +25,9 @@ def _circle_intersection(a, ra, c, rc, near):
     return min(cands, key=lambda p: np.linalg.norm(p - near))
 
 
-def test_builder_assembles_an_open_loop_holding_the_crank():
+def test_builder_assembles_an_open_loop_holding_the_crank(four_bar):
     # rocker drawn 0.01 m too long: the loop is open by 0.01 m at B = B2
-    mb = _four_bar(offset=0.01)
+    mb = four_bar(offset=0.01)
     mech, x0 = mb.build(dof=3, assemble=True, hold=["A"])
     asm = mb.assembly
     assert np.abs(np.asarray(constraints(mech, jnp.asarray(x0)))).max() <= RESIDUAL_TOL
@@ -65,13 +42,13 @@ def test_builder_assembles_an_open_loop_holding_the_crank():
     assert "A" not in asm.moved and asm.residual <= RESIDUAL_TOL
 
 
-def test_unassembled_data_are_refused_with_the_way_out():
+def test_unassembled_data_are_refused_with_the_way_out(four_bar):
     with pytest.raises(ModelError, match="violate constraints: loop closure.*assemble=True"):
-        _four_bar(offset=0.01).build()
+        four_bar(offset=0.01).build()
 
 
-def test_assemble_sets_a_crank_angle_and_the_loop_follows():
-    mech, x0 = _four_bar().build(dof=3)
+def test_assemble_sets_a_crank_angle_and_the_loop_follows(four_bar):
+    mech, x0 = four_bar().build(dof=3)
     for theta in (0.3, 1.2, 2.0):
         x = np.array(x0)
         x[mech.free_slice("A")] = (np.sin(theta), np.cos(theta), 0.0)  # crank |OA| = 1 turned by theta
@@ -84,28 +61,28 @@ def test_assemble_sets_a_crank_angle_and_the_loop_follows():
         np.testing.assert_allclose(asm.correction, asm.x - x)
 
 
-def test_single_coordinates_can_be_held():
-    mech, x0 = _four_bar(offset=0.01).build(dof=3, assemble=True, hold=[("B", "x"), ("B", "z")])
+def test_single_coordinates_can_be_held(four_bar):
+    mech, x0 = four_bar(offset=0.01).build(dof=3, assemble=True, hold=[("B", "x"), ("B", "z")])
     np.testing.assert_array_equal(x0[mech.free_slice("B")][[0, 2]], [2.0, 0.0])
 
 
-def test_a_loop_that_cannot_close_is_reported():
+def test_a_loop_that_cannot_close_is_reported(four_bar):
     # rocker 0.1 m: coupler + rocker (2.1 m) cannot reach from the held crank tip to the rocker pivot (2.24 m)
     with pytest.raises(ModelError, match="assembly failed.*held coordinates.*largest residuals"):
-        _four_bar(offset=-0.9).build(assemble=True, hold=["A"])
+        four_bar(offset=-0.9).build(assemble=True, hold=["A"])
 
 
 @pytest.mark.parametrize("hold, match", [(["O"], "cannot hold 'O': a ground particle"),
                                          (["nowhere"], "cannot hold 'nowhere': not a particle"),
                                          ([("A", "w")], "the axis must be")])
-def test_bad_holds(hold, match):
-    mech, x0 = _four_bar().build()
+def test_bad_holds(hold, match, four_bar):
+    mech, x0 = four_bar().build()
     with pytest.raises(ModelError, match=match):
         assemble(mech, x0, hold=hold)
 
 
-def test_bad_state():
-    mech, x0 = _four_bar().build()
+def test_bad_state(four_bar):
+    mech, x0 = four_bar().build()
     with pytest.raises(ModelError, match="x must be 9 finite numbers"):
         assemble(mech, np.full(9, np.nan))
     with pytest.raises(ModelError, match="x must be 9 finite numbers"):
