@@ -1,0 +1,94 @@
+"""Named outputs of a mechanism state: body poses, centres of mass and velocities.
+
+A body's pose is the rigid map from its own frame (the frame its inertia was given in, see
+:meth:`~.builder.MechanismBuilder.body`) to the world, ``p_world = R p_body + origin``. It is exact from the
+primaries: the affine map taking the body-frame primaries to their world positions (four points for a spatial
+body; three and the unit normal of their plane for a planar one). A rod has no rotation about its own axis; its
+``R`` is the rotation without twist taking the body-frame axis to the current one (undefined when the axis has
+turned by exactly 180 degrees).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..spatial import unskew
+from .model import Mechanism
+
+__all__ = ["body_poses", "body_com_positions", "body_velocities"]
+
+
+def _unit(v):
+    return v / jnp.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _frame_points(loc, wld, kind: str):
+    """Four affinely independent points per body, body frame and world: ``(n, 4, 3)`` each."""
+    if kind == "spatial":
+        return loc, wld
+    n_l = _unit(jnp.cross(loc[:, 1] - loc[:, 0], loc[:, 2] - loc[:, 0]))
+    n_w = _unit(jnp.cross(wld[:, 1] - wld[:, 0], wld[:, 2] - wld[:, 0]))
+    return (jnp.concatenate([loc[:, :3], (loc[:, 0] + n_l)[:, None]], axis=1),
+            jnp.concatenate([wld[:, :3], (wld[:, 0] + n_w)[:, None]], axis=1))
+
+
+def _rod_rotation(a, b):
+    """Rotation without twist taking unit ``a`` to unit ``b`` (rows of ``(n, 3)``): Rodrigues' formula."""
+    v = jnp.cross(a, b)
+    c = jnp.sum(a * b, axis=-1)
+    vx = jnp.zeros(v.shape[:-1] + (3, 3), v.dtype)
+    vx = vx.at[..., 0, 1].set(-v[..., 2]).at[..., 0, 2].set(v[..., 1]).at[..., 1, 0].set(v[..., 2])
+    vx = vx.at[..., 1, 2].set(-v[..., 0]).at[..., 2, 0].set(-v[..., 1]).at[..., 2, 1].set(v[..., 0])
+    return jnp.broadcast_to(jnp.eye(3), vx.shape) + vx + vx @ vx / (1.0 + c)[..., None, None]
+
+
+def body_poses(mech: Mechanism, x: Float[Array, " 3F"]) -> tuple[Float[Array, "B 3 3"], Float[Array, "B 3"]]:
+    """``(R, origin)`` of every body at state ``x``: ``p_world = R p_body + origin`` (body order of
+    ``mech.topo.body_names``; :meth:`Mechanism.body_index` gives a body's row)."""
+    topo = mech.topo
+    r = mech.all_positions(x)
+    n_b = len(topo.body_names)
+    rot = jnp.zeros((n_b, 3, 3), r.dtype)
+    org = jnp.zeros((n_b, 3), r.dtype)
+    for kind, k in (("spatial", 4), ("planar", 3), ("rod", 2)):
+        bs = np.array([b for b in range(n_b) if len(topo.body_particles[b]) == k], dtype=int)
+        if not bs.size:
+            continue
+        idx = np.array([topo.body_particles[b] for b in bs], dtype=int)
+        loc = mech.body_primaries[bs, :k]
+        wld = r[idx]
+        if kind == "rod":
+            rr = _rod_rotation(_unit(loc[:, 1] - loc[:, 0]), _unit(wld[:, 1] - wld[:, 0]))
+            oo = wld[:, 0] - jnp.einsum("bij,bj->bi", rr, loc[:, 0])
+        else:
+            lp, wp = _frame_points(loc, wld, kind)
+            h = jnp.concatenate([lp, jnp.ones(lp.shape[:2] + (1,), lp.dtype)], axis=2)  # (n, 4, 4)
+            a = jnp.linalg.solve(h, wp)  # rows: R^T (3 rows) then origin
+            rr, oo = jnp.swapaxes(a[:, :3], 1, 2), a[:, 3]
+        rot, org = rot.at[bs].set(rr), org.at[bs].set(oo)
+    return rot, org
+
+
+def body_com_positions(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, "B 3"]:
+    """World position of every body's centre of mass."""
+    rot, org = body_poses(mech, x)
+    return jnp.einsum("bij,bj->bi", rot, mech.body_com) + org
+
+
+def body_velocities(mech: Mechanism, x: Float[Array, " 3F"], xd: Float[Array, " 3F"]
+                    ) -> tuple[Float[Array, "B 3"], Float[Array, "B 3"]]:
+    """``(v_com, omega)`` of every body: centre-of-mass velocity and angular velocity, world frame (a rod's
+    angular velocity has no component along its axis)."""
+    (rot, org), (rot_d, org_d) = jax.jvp(lambda y: body_poses(mech, y), (x,), (xd,))
+    omega = jax.vmap(unskew)(rot_d @ jnp.swapaxes(rot, 1, 2))
+    rods = np.array([b for b, ps in enumerate(mech.topo.body_particles) if len(ps) == 2], dtype=int)
+    if rods.size:  # a rod has no spin about its axis: keep u x u' only (its no-twist frame adds a path term)
+        r = mech.all_positions(x)[np.array([mech.topo.body_particles[b] for b in rods], dtype=int)]
+        u = _unit(r[:, 1] - r[:, 0])
+        w = omega[rods]
+        omega = omega.at[rods].set(w - jnp.sum(w * u, axis=1, keepdims=True) * u)
+    v = jnp.einsum("bij,bj->bi", rot_d, mech.body_com) + org_d
+    return v, omega
