@@ -271,8 +271,9 @@ def equivalent_particles(body: RigidInertia, primaries: Float[ArrayLike, "k 3"],
         if off_first > REPRESENTABLE_RTOL * scale_first:
             raise PlacementError(
                 f"{name}: a {kind} particle set cannot represent this body: its centre of mass "
-                f"{np.asarray(body.com).tolist()} lies {off_first / float(body.mass):.3g} m off the {where} of the "
-                "primaries")
+                f"{np.asarray(body.com).tolist()} (body frame) lies {off_first / float(body.mass):.3g} m off the "
+                f"{where} of the primaries {np.asarray(prim).round(12).tolist()} (body frame); place the primaries "
+                f"so that their {where} contains the centre of mass")
         if off_second > REPRESENTABLE_RTOL * scale_second:
             need = ("the perpendicular-axis theorem I_n = I_a + I_b about the plane normal"
                     if kind == "planar" else "zero inertia about the rod axis and equal transverse moments")
@@ -284,7 +285,8 @@ def equivalent_particles(body: RigidInertia, primaries: Float[ArrayLike, "k 3"],
     if neg.size and on_negative != "ignore":
         msg = (f"{name}: equivalent particles {[int(i) + 1 for i in neg]} have negative masses "
                f"{np.asarray(masses)[neg].round(6).tolist()} kg; the dynamics stay exact but the particle system is "
-               "not physically consistent (spread the primaries further along the body's principal axes)")
+               "not physically consistent. To avoid it, place the primaries farther apart along the body's "
+               "principal axes through its centre of mass, or pass on_negative='ignore' if only the motion matters")
         if on_negative == "raise":
             raise PlacementError(msg)
         warnings.warn(msg, NegativeMassWarning, stacklevel=2)
