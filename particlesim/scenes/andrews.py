@@ -26,7 +26,8 @@ import numpy as np
 from ..inertia import RigidInertia
 from ..mechanism import MechanismBuilder
 
-__all__ = ["CONST", "Q0", "REFERENCE_T", "REFERENCE_Q", "REFERENCE_QD", "andrews_mechanism", "joint_angles"]
+__all__ = ["CONST", "Q0", "REFERENCE_T", "REFERENCE_Q", "REFERENCE_QD", "andrews_mechanism", "joint_angles",
+           "angles_from_points"]
 
 #: The constants of the benchmark (masses kg, inertias about the CoM kg m^2, lengths m, c0 N/m, mom N m).
 CONST = dict(
@@ -143,19 +144,17 @@ def joint_angles(mech, xs, xds):
     """The benchmark's joint angles and rates ``(n, 7)`` each from particle states ``(n, 3F)`` (a time series
     from the start, so that the crank angles are unwrapped continuously)."""
     xs, xds = np.atleast_2d(np.asarray(xs)), np.atleast_2d(np.asarray(xds))
-    names = mech.topo.particle_names
+    return angles_from_points(*(xs[:, mech.free_slice(n)][:, :2] for n in "FEGH"),
+                              *(xds[:, mech.free_slice(n)][:, :2] for n in "FEGH"))
 
-    def p(n):
-        if n in ("A", "B"):
-            xyz = np.asarray(mech.all_positions(np.asarray(xs[0])))[names.index(n)]
-            return np.broadcast_to(xyz[:2], (len(xs), 2)), np.zeros((len(xs), 2))
-        s = mech.free_slice(n)
-        return xs[:, s][:, :2], xds[:, s][:, :2]
 
-    (f, fd), (e, ed), (g, gd), (h, hd) = p("F"), p("E"), p("G"), p("H")
-    (a, _), (b, _) = p("A"), p("B")
+def angles_from_points(f, e, g, h, fd, ed, gd, hd):
+    """Joint angles and rates ``(n, 7)`` from time series ``(n, 2)`` of the joint points F, E, G, H and their
+    velocities in the plane (the ground points A, B are the benchmark's)."""
+    a = np.array([CONST["xa"], CONST["ya"]])
+    b = np.array([CONST["xb"], CONST["yb"]])
     rot90 = lambda v: np.stack([v[..., 1], -v[..., 0]], axis=-1)  # noqa: E731  angle(rot90(v)) = angle(v) - pi/2
-    vecs = [  # (vector, its rate, angle offset) whose polar angle gives each coordinate
+    vecs = [  # (vector, its rate) whose polar angle gives each absolute angle
         (f, fd),  # beta
         (f - e, fd - ed),  # beta + Theta
         (rot90(b - e), rot90(-ed)),  # gamma: B - E = ss (-sin g, cos g)
@@ -166,8 +165,7 @@ def joint_angles(mech, xs, xds):
     ]
     ang = np.stack([np.unwrap(_angle(v)) for v, _ in vecs], axis=1)
     rate = np.stack([_rate(v, vd) for v, vd in vecs], axis=1)
-    # unwrap each series to start at the branch of the initial angles
-    for j in range(7):
+    for j in range(7):  # each series on the branch of its initial angle
         ang[:, j] += 2 * np.pi * np.round((_sum_start(j) - ang[0, j]) / (2 * np.pi))
     q = np.stack([ang[:, 0], ang[:, 1] - ang[:, 0], ang[:, 2], ang[:, 3] - ang[:, 4], ang[:, 4],
                   ang[:, 5] - ang[:, 6], ang[:, 6]], axis=1)
