@@ -3,8 +3,9 @@
 Run: ``python -m benchmarks.krang_dynamics``. Writes ``benchmarks/results/krang_dynamics.{json,csv,png}``.
 
 Rows (per state for batched rows, per step for fixed-step rollouts, per simulated second for ours):
-  ours forward_dynamics, one jitted call; ours vmapped over 1024 states; Pinocchio ABA per call;
-  MJX ``forward`` vmapped over 1024 states; MuJoCo C RK4 per step (dt 1e-4); MJX jitted RK4 rollout (scan) per
+  ours forward_dynamics, one jitted call; ours vmapped over 1024 states; Pinocchio ABA per call from Python and
+  Pinocchio's batched C++ ``abaInParallel`` over the 1024 states on 1 and 2 threads; MJX ``forward`` vmapped over
+  1024 states; MuJoCo C RK4 per step (dt 1e-4, ``mujoco.rollout``); MJX jitted RK4 rollout (scan) per
   step; our jitted diffrax rollout per simulated second (Tsit5 at the default tolerances, Dopri8 at tight ones).
 Compile times are measured separately (``jit(...).lower(...).compile()``); run times are medians of repeats with
 ``block_until_ready`` on the results. Issue targets: batched ≤ 1.0× ABA per state, single call ≤ 3× ABA,
@@ -91,7 +92,16 @@ def run() -> dict:
             pin.aba(pm, pdata, qs[k], qds[k], taus[k])
 
     t_aba = median_time(aba_all, number=1) / BATCH
-    rows.append(_row("Pinocchio ABA (C++)", t_aba, "per call"))
+    rows.append(_row("Pinocchio ABA (C++, one call per state from Python)", t_aba, "per call"))
+    # Pinocchio's own batched C++ path: columns are states.
+    pool = pin.ModelPool(pm, 2)
+    qT, qdT, tauT = (np.asfortranarray(a.T) for a in (qs, qds, taus))
+    aT = np.zeros_like(qdT, order="F")
+    for threads in (1, 2):
+        t = median_time(lambda th=threads: pin.abaInParallel(th, pool, qT, qdT, tauT, aT), number=3) / BATCH
+        rows.append(_row(f"Pinocchio abaInParallel (C++, {BATCH} states, {threads} thread{'s' * (threads > 1)})",
+                         t, "per state"))
+    np.testing.assert_allclose(aT[:, 0], pin.aba(pm, pdata, qs[0], qds[0], taus[0]), rtol=1e-12, atol=1e-9)
     def rel_err(k):
         ref = pin.aba(pm, pdata, qs[k], qds[k], taus[k])
         return float(np.max(np.abs(ref - np.asarray(single(model, jq[k], jqd[k], jtau[k])))) / np.max(np.abs(ref)))
@@ -114,16 +124,13 @@ def run() -> dict:
     t = median_time(lambda: mjx_b(mq, mqd, mtau), number=2, block=jax.block_until_ready)
     rows.append(_row(f"MJX forward (vmap {BATCH})", t / BATCH, "per state", c3))
 
-    # MuJoCo C, RK4 steps.
+    # MuJoCo C, RK4 steps in its native loop.
+    from ._native import Rollout, initial_state
+
     d = mujoco.MjData(m)
     d.qpos[:], d.qvel[:] = mq[0], mqd[0]
-
-    def c_steps():
-        for _ in range(1000):
-            mujoco.mj_step(m, d)
-
-    t = median_time(c_steps, number=1, repeat=5) / 1000
-    rows.append(_row(f"MuJoCo C RK4 step (dt {DT:g})", t, "per step"))
+    _, t = Rollout(m, initial_state(m, d), 1000).timed(5)
+    rows.append(_row(f"MuJoCo C RK4 step (dt {DT:g}, mujoco.rollout)", t / 1000, "per step"))
 
     # MJX jitted RK4 rollout (scan); one forward first (x64 field types settle).
     steps = 1000
