@@ -12,7 +12,9 @@ the reference from ours (Dopri8, rtol 1e-13, atol 1e-15). Rows:
 * ours: :func:`particlesim.simulate.simulate` with :func:`particlesim.tree.forward_dynamics` and ``control = tau(t)``
   (evaluated at every stage), Bosh3, Tsit5, Dopri5, Dopri8, Kvaerno3, Kvaerno5 over a sweep of rtol
   (atol = rtol / 100); one compile per solver (tolerances traced), compile time listed separately;
-* MuJoCo C twin, RK4 over a sweep of fixed steps, with the torque added to ``qfrc_passive`` by ``mjcb_passive`` at
+* MuJoCo C twin, RK4 through ``mujoco.rollout`` over a sweep of fixed steps, the torque a compiled C
+  ``mjcb_passive`` (:func:`particlesim.io.mjcb.install_sine_torques`); and, labelled, the same twin driven from
+  Python (``mj_step`` loop) with the torque added to ``qfrc_passive`` by a Python ``mjcb_passive`` at
   every RK4 stage at the stage time ``d.time`` (a torque held over a step would be first order, MUJOCO-TWINS.md;
   tests/test_krang_torque_twin.py measures fourth-order convergence), and Euler and implicitfast (first order)
   over a short sweep. The callback is a Python function: its cost is part of MuJoCo C's rows and is measured
@@ -62,6 +64,8 @@ RTOLS = {
     "kvaerno5": (1e-4, 1e-5),
 }
 C_RK4_STEPS = (2e-3, 1e-3, 5e-4, 2.5e-4, 1.25e-4)
+#: MuJoCo C's native loop starts coarser, so its sweep brackets the target from above
+C_NATIVE_STEPS = (1e-2, 5e-3, 4e-3) + C_RK4_STEPS
 C_FIRST_ORDER_STEPS = (1e-3, 1e-4, 1e-5)
 MJX_STEPS = (1e-3, 5e-4, 2.5e-4)
 
@@ -130,6 +134,38 @@ def mujoco_c_rollout(m, jm: JointMap, q0, qd0, torque_args, ts=TS, *, callback: 
     return jm.from_mujoco(np.asarray(out))
 
 
+def c_native_rows(jm: JointMap, q0, qd0, torque_args, errors) -> list[dict]:
+    """MuJoCo C RK4 through its native loop (``mujoco.rollout``) with the torque as a compiled ``mjcb_passive``
+    evaluated at every stage at the stage time (:func:`particlesim.io.mjcb.install_sine_torques`)."""
+    from particlesim.io import mjcb
+
+    from ._native import Rollout, initial_state
+
+    amp, omega, phase = (np.asarray(jm.to_mujoco(np.asarray(a))) for a in torque_args)
+    save_dt = TS[1] - TS[0]
+
+    def make(dt):
+        m = twin(dt)
+        d = mujoco.MjData(m)
+        d.qpos[:], d.qvel[:] = jm.to_mujoco(np.asarray(q0)), jm.to_mujoco(np.asarray(qd0))
+        ro = Rollout(m, initial_state(m, d), int(round(T_END / dt)))
+        stride = int(round(save_dt / dt))
+        on_grid = dt <= save_dt and abs(stride * dt - save_dt) < 1e-12
+
+        def to_traj(states):
+            q = jm.from_mujoco(ro.trajectory(states, lambda mm, dd: dd.qpos.copy(), stride if on_grid else ro.nstep))
+            return q if on_grid else np.concatenate([np.full((len(TS) - 1, q.shape[1]), np.nan), q[-1:]])
+
+        return ro, to_traj
+
+    mjcb.install_sine_torques(amp, omega, phase)
+    try:
+        return _wp.sweep_rollout("MuJoCo C twin RK4 (mujoco.rollout, C callback)", C_NATIVE_STEPS, make, errors,
+                                 T_END, log=lambda r: print(r, flush=True))
+    finally:
+        mjcb.uninstall()
+
+
 def run() -> dict:
     started = time.perf_counter()
     model, q0, qd0, targs = scene()
@@ -145,9 +181,11 @@ def run() -> dict:
     rows = _wp.sweep_ours(make, args, tuple(RTOLS), RTOLS, errors, compiled=cache)
 
     jm = JointMap(twin(1e-3), model.joint_names)
+    rows += c_native_rows(jm, q0, qd0, targs, errors)
     for integ, dts in (("rk4", C_RK4_STEPS), ("euler", C_FIRST_ORDER_STEPS), ("implicitfast", C_FIRST_ORDER_STEPS)):
         models = {dt: twin(dt, integ) for dt in dts}
-        label = {"rk4": "RK4", "euler": "Euler", "implicitfast": "implicitfast"}[integ]
+        label = {"rk4": "RK4", "euler": "Euler", "implicitfast": "implicitfast"}[integ] + \
+            " (Python loop, Python callback)"
         rows += _wp.sweep_fixed(f"MuJoCo C twin {label}", dts,
                                 lambda dt: mujoco_c_rollout(models[dt], jm, q0, qd0, targs), errors, T_END,
                                 repeat=3 if integ == "rk4" else 1)
@@ -175,10 +213,12 @@ def run() -> dict:
         f"Torque input: {len(ARMS)} arm joints, tau_j = A_j sin(w_j t + phi_j), A 2-5 N m (wrists 0.3-0.75 N m), 0.5-2 Hz, evaluated at "
         "every stage by every method (MuJoCo C through `mjcb_passive` at the stage time `d.time`; its RK4 converges "
         "at fourth order, tests/test_krang_torque_twin.py).",
-        f"MuJoCo C is driven from Python (`mj_step` in a loop, the torque in a Python passive callback): at dt 5e-4 "
-        f"({overhead['steps']} RK4 steps) no callback {_wp.fmt_time(cost['none'])}, a no-op callback "
-        f"{_wp.fmt_time(cost['noop'])}, the torque callback {_wp.fmt_time(cost['torque'])}; the difference is "
-        "interpreter overhead a C callback would not pay, and it is included in MuJoCo C's rows.",
+        "MuJoCo C's headline row runs its native loop (`mujoco.rollout`, calling thread) with the torque as a "
+        "compiled C `mjcb_passive` (particlesim.io.mjcb); its step is swept from too coarse to fine and its time "
+        "interpolated to the target. The rows labelled 'Python loop, Python callback' drive `mj_step` from Python "
+        f"with the torque in a Python callback (kept for comparison): at dt 5e-4 ({overhead['steps']} RK4 steps) no "
+        f"callback {_wp.fmt_time(cost['none'])}, a no-op callback {_wp.fmt_time(cost['noop'])}, the torque "
+        f"callback {_wp.fmt_time(cost['torque'])}.",
         "Ours runs one jitted call per 2 s rollout (dispatch included in the wall time); compile times are listed "
         "separately and are not in the ratios.",
         "With joint damping as the only velocity-dependent force, MuJoCo's Euler (which already treats damping "

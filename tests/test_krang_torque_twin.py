@@ -92,3 +92,34 @@ def test_mjx_forced_rk4_equals_mujoco_c(krang):
     print(f"|MJX - C| = {np.abs(mjx_q - c_q).max():.2e} (round-off bound {roundoff:.1e}), "
           f"|MJX - ours| = {np.abs(mjx_q - ours).max():.2e}")
     assert np.abs(mjx_q - c_q).max() <= roundoff
+
+
+#: The compiled torque callback against the Python one, same model and steps (only the arithmetic order differs).
+COMPILED_VS_PYTHON_ATOL = 1e-11  # rad over 1 s
+
+
+def test_compiled_torque_callback_equals_python_callback(krang):
+    """The benchmark's MuJoCo C rows run the torque as a compiled ``mjcb_passive`` inside ``mujoco.rollout``; it
+    must equal the Python callback of the convergence tests above."""
+    import mujoco
+
+    from benchmarks._native import Rollout, initial_state
+    from particlesim.io import mjcb
+
+    model, q0, qd0, targs, _, jm = krang
+    dt = 1e-3
+    python = _c(krang, dt)
+    m = wp_krang.twin(dt)
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:] = jm.to_mujoco(np.asarray(q0)), jm.to_mujoco(np.asarray(qd0))
+    ro = Rollout(m, initial_state(m, d), int(round(T1 / dt)))
+    mjcb.install_sine_torques(*(jm.to_mujoco(np.asarray(a)) for a in targs))
+    try:
+        states = ro()
+    finally:
+        mjcb.uninstall()
+    stride = int(round((TS[1] - TS[0]) / dt))
+    compiled = jm.from_mujoco(ro.trajectory(states, lambda mm, dd: dd.qpos.copy(), stride))
+    assert np.abs(python).max() > 0.1  # the robot moved
+    np.testing.assert_allclose(compiled, python, atol=COMPILED_VS_PYTHON_ATOL, rtol=0)
+    assert mujoco.get_mjcb_passive() is None

@@ -1,4 +1,5 @@
-"""Compiled MuJoCo passive-force callbacks for the C twins: the one-sided tyre, evaluated at every RK4 stage.
+"""Compiled MuJoCo passive-force callbacks for the C twins, evaluated at every RK4 stage: the one-sided tyre and
+sinusoidal joint torques.
 
 MuJoCo has no element for a one-sided spring-damper, so the twins of the quarter car and of Nikravesh's double
 A-arm add it in ``mjcb_passive``. A Python callback costs interpreter time per stage and cannot run on the worker
@@ -27,11 +28,13 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-__all__ = ["MAX_TYRES", "set_tyres", "install_tyres", "uninstall", "compiled_library", "tyre_numeric"]
+__all__ = ["MAX_TYRES", "MAX_DOF", "set_tyres", "install_tyres", "install_sine_torques", "uninstall", "compiled_library",
+           "tyre_numeric"]
 
 MAX_TYRES = 8
 
 _SOURCE = r"""
+#include <math.h>
 #include <mujoco/mujoco.h>
 
 #define MAX_TYRES 8
@@ -77,6 +80,23 @@ void ps_tyre_passive(const mjModel* m, mjData* d) {
   }
   mj_freeStack(d);
 }
+
+/* joint torques tau_j(t) = A_j sin(w_j t + phi_j) on every dof, at the stage time d->time */
+#define MAX_DOF 256
+static int n_sine = 0;
+static double sine_par[MAX_DOF][3];  /* amplitude, angular frequency, phase */
+
+void ps_set_sine(int j, double a, double w, double phi) {
+  sine_par[j][0] = a; sine_par[j][1] = w; sine_par[j][2] = phi;
+}
+
+void ps_set_sine_count(int n) { n_sine = n; }
+
+void ps_sine_passive(const mjModel* m, mjData* d) {
+  int n = n_sine < m->nv ? n_sine : m->nv;
+  for (int j = 0; j < n; j++)
+    if (sine_par[j][0] != 0.0) d->qfrc_passive[j] += sine_par[j][0] * sin(sine_par[j][1] * d->time + sine_par[j][2]);
+}
 """
 
 _LIB: ctypes.CDLL | None = None
@@ -108,7 +128,7 @@ def compiled_library() -> ctypes.CDLL:
             tmp_out = Path(tmp) / out.name
             cc = os.environ.get("CC", "cc")
             cmd = [cc, "-O2", "-shared", "-fPIC", f"-I{include}", str(src), "-o", str(tmp_out),
-                   f"-L{lib.parent}", f"-l:{lib.name}", f"-Wl,-rpath,{lib.parent}"]
+                   f"-L{lib.parent}", f"-l:{lib.name}", f"-Wl,-rpath,{lib.parent}", "-lm"]
             res = subprocess.run(cmd, capture_output=True, text=True)
             if res.returncode:
                 raise RuntimeError(f"compiling the MuJoCo tyre callback failed ({' '.join(cmd)}):\n{res.stderr}")
@@ -138,6 +158,22 @@ def install_tyres(tyres) -> None:
     code directly, on any thread."""
     set_tyres(tyres)
     mujoco.set_mjcb_passive(ctypes.cast(compiled_library().ps_tyre_passive, _CALLBACK))
+
+
+MAX_DOF = 256
+
+
+def install_sine_torques(amplitude, omega, phase) -> None:
+    """Install ``tau_j(t) = amplitude_j sin(omega_j t + phase_j)`` on dof ``j`` (MuJoCo's dof order) as a compiled
+    ``mjcb_passive``, evaluated at every RK4 stage at the stage time; runs on ``mujoco.rollout``'s threads."""
+    a, w, ph = (np.asarray(v, dtype=float).reshape(-1) for v in (amplitude, omega, phase))
+    if not (a.shape == w.shape == ph.shape) or a.size > MAX_DOF or not np.all(np.isfinite(np.r_[a, w, ph])):
+        raise ValueError(f"amplitude, omega, phase: equal lengths <= {MAX_DOF}, finite")
+    lib = compiled_library()
+    for j in range(a.size):
+        lib.ps_set_sine(ctypes.c_int(j), ctypes.c_double(a[j]), ctypes.c_double(w[j]), ctypes.c_double(ph[j]))
+    lib.ps_set_sine_count(ctypes.c_int(a.size))
+    mujoco.set_mjcb_passive(ctypes.cast(lib.ps_sine_passive, _CALLBACK))
 
 
 def uninstall() -> None:
