@@ -157,6 +157,27 @@ class RigidInertia(eqx.Module):
         return cls(mass, com, i, name=name, degenerate_ok=degenerate_ok)
 
     @classmethod
+    def slender_rod(cls, mass, p, q, *, com=None, moment=None, name="body"):
+        """A slender rod from ``p`` to ``q`` (its frame's coordinates): all mass on the line, inertia ``moment``
+        about every axis through the centre of mass perpendicular to the rod and none about the rod. Defaults: a
+        uniform rod (``com`` the midpoint, ``moment = mass L^2 / 12``). It is what a rod particle set (two
+        primaries on the line) represents exactly."""
+        p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
+        if p.shape != (3,) or q.shape != (3,) or not np.all(np.isfinite(np.r_[p, q])):
+            raise InertiaError(f"{name}: rod end points must be 3 finite numbers each, got {p.tolist()}, {q.tolist()}")
+        ell = float(np.linalg.norm(q - p))
+        if ell == 0.0:
+            raise InertiaError(f"{name}: rod end points coincide at {p.tolist()}")
+        u = (q - p) / ell
+        c = (p + q) / 2 if com is None else np.asarray(com, dtype=float)
+        off = c - p - ((c - p) @ u) * u
+        if c.shape != (3,) or not np.all(np.isfinite(c)) or np.linalg.norm(off) > 1e-9 * ell:
+            raise InertiaError(f"{name}: a slender rod's centre of mass {np.asarray(com).tolist()} must lie on the "
+                               f"line through {p.tolist()} and {q.tolist()}")
+        j = float(mass) * ell**2 / 12 if moment is None else moment
+        return cls(mass, c, j * (np.eye(3) - np.outer(u, u)), name=name, degenerate_ok=True)
+
+    @classmethod
     def from_origin_params(cls, params: ArrayLike, *, name="body", degenerate_ok=False):
         """From ``[m, m cx, m cy, m cz, XX, XY, XZ, YY, YZ, ZZ]`` with the inertia about the frame origin."""
         p = jnp.asarray(params, dtype=float)

@@ -28,13 +28,6 @@ TWO_LINK_URDF = """<?xml version="1.0"?>
 """
 
 
-def _rod(p, q, m):
-    p, q = np.asarray(p, float), np.asarray(q, float)
-    u = (q - p) / np.linalg.norm(q - p)
-    ell = np.linalg.norm(q - p)
-    return RigidInertia(m, (p + q) / 2, m * ell**2 / 12 * (np.eye(3) - np.outer(u, u)), degenerate_ok=True)
-
-
 @pytest.fixture(scope="module")
 def pendulum():
     """Two rods and a spring: a small mechanism whose parameters all have names."""
@@ -42,8 +35,8 @@ def pendulum():
     mb.ground("O", (0, 0, 0))
     mb.particle("A", (0.5, 0, 0))
     mb.particle("B", (1.0, 0, 0.2))
-    mb.body("link1", _rod((0, 0, 0), (0.5, 0, 0), 1.0), ["O", "A"])
-    mb.body("link2", _rod((0.5, 0, 0), (1.0, 0, 0.2), 0.7), ["A", "B"])
+    mb.body("link1", RigidInertia.slender_rod(1.0, (0, 0, 0), (0.5, 0, 0)), ["O", "A"])
+    mb.body("link2", RigidInertia.slender_rod(0.7, (0.5, 0, 0), (1.0, 0, 0.2)), ["A", "B"])
     mb.spring_damper("spring", "O", "B", 20.0, 0.5, 0.8)
     mech, x0 = mb.build()
     return mech, jnp.asarray(x0)

@@ -108,3 +108,25 @@ def test_degenerate_only_when_allowed():
     with pytest.raises(InertiaError, match="positive definite"):
         RigidInertia(1.0, np.zeros(3), rod, name="rod")
     RigidInertia(1.0, np.zeros(3), rod, name="rod", degenerate_ok=True)
+
+
+def test_slender_rod_against_point_masses_along_the_line():
+    """A uniform rod as 2001 equal point masses along the segment (midpoint rule): mass, CoM and inertia."""
+    p, q, m = np.array([0.1, -0.2, 0.3]), np.array([0.9, 0.4, -0.5]), 2.5
+    s = (np.arange(2001) + 0.5) / 2001
+    pts = p + s[:, None] * (q - p)
+    c = pts.mean(axis=0)
+    r = pts - c
+    inertia = m / len(s) * (np.sum(r * r) * np.eye(3) - r.T @ r)
+    rod = RigidInertia.slender_rod(m, p, q)
+    np.testing.assert_allclose(rod.com, c, atol=1e-15)
+    np.testing.assert_allclose(rod.inertia, inertia, atol=1e-6 * np.abs(inertia).max())  # midpoint rule O(1/n^2)
+    off = RigidInertia.slender_rod(m, p, q, com=p + 0.25 * (q - p), moment=0.01)
+    u = (q - p) / np.linalg.norm(q - p)
+    np.testing.assert_allclose(np.asarray(off.inertia) @ u, 0.0, atol=1e-15)  # none about the rod
+    with pytest.raises(InertiaError, match="link: rod end points coincide"):
+        RigidInertia.slender_rod(1.0, p, p, name="link")
+    with pytest.raises(InertiaError, match="link: a slender rod's centre of mass .* must lie on the line"):
+        RigidInertia.slender_rod(1.0, p, q, com=(0, 0, 0), name="link")
+    with pytest.raises(InertiaError, match="link: rod end points must be 3 finite numbers"):
+        RigidInertia.slender_rod(1.0, p, (0, np.nan, 0), name="link")

@@ -13,8 +13,8 @@ set; Hairer and Wanner's joint-angle formulation). Particle layout (choices of t
 
 The data give only the polar moment of each body; a planar set needs the in-plane split, chosen as ``J/2, J/2``
 (it does not enter planar motion). The directions of the off-line centres of mass of bodies 3, 5 and 7 do not enter
-the dynamics (each turns about a fixed point, without gravity; only the distance does); they are placed as in the
-joint-angle formulation's body frames. The mechanism lives in 3-D: nothing excites the out-of-plane freedoms, and
+the dynamics (each turns about a fixed point, without gravity; only the distance does); the directions used here
+are a choice of this package. The mechanism lives in 3-D: nothing excites the out-of-plane freedoms, and
 the out-of-plane coordinates stay zero.
 """
 
@@ -89,8 +89,7 @@ def _lamina(m: float, com2: np.ndarray, j: float) -> RigidInertia:
 
 
 def _rod(m: float, com2: np.ndarray, j: float, p: np.ndarray, q: np.ndarray) -> RigidInertia:
-    u = np.append((q - p) / np.linalg.norm(q - p), 0.0)
-    return RigidInertia(m, (*com2, 0.0), j * (np.eye(3) - np.outer(u, u)), degenerate_ok=True)
+    return RigidInertia.slender_rod(m, (*p, 0.0), (*q, 0.0), com=(*com2, 0.0), moment=j)
 
 
 def andrews_mechanism(q0=Q0):

@@ -1,19 +1,9 @@
 """Shared mechanism fixtures."""
 
-import numpy as np
 import pytest
 
 from particlesim.inertia import RigidInertia
 from particlesim.mechanism import MechanismBuilder
-
-
-def rod(p, q, m=1.0) -> RigidInertia:
-    """A uniform slender rod of mass ``m`` from ``p`` to ``q`` (global frame)."""
-    p, q = np.asarray(p, float), np.asarray(q, float)
-    u = q - p
-    ell = np.linalg.norm(u)
-    u = u / ell
-    return RigidInertia(m, (p + q) / 2, m * ell**2 / 12 * (np.eye(3) - np.outer(u, u)), degenerate_ok=True)
 
 
 def _four_bar(close=True, extra_link=False, offset=0.0) -> MechanismBuilder:
@@ -25,9 +15,9 @@ def _four_bar(close=True, extra_link=False, offset=0.0) -> MechanismBuilder:
     mb.particle("A", (0, 1, 0))
     mb.particle("B", (2, 1, 0))
     mb.particle("B2", (2, 1 + offset, 0))
-    mb.body("crank", rod((0, 0, 0), (0, 1, 0)), ["O", "A"])
-    mb.body("coupler", rod((0, 1, 0), (2, 1, 0)), ["A", "B"])
-    mb.body("rocker", rod((2, 0, 0), (2, 1 + offset, 0)), ["C", "B2"])
+    mb.body("crank", RigidInertia.slender_rod(1.0, (0, 0, 0), (0, 1, 0)), ["O", "A"])
+    mb.body("coupler", RigidInertia.slender_rod(1.0, (0, 1, 0), (2, 1, 0)), ["A", "B"])
+    mb.body("rocker", RigidInertia.slender_rod(1.0, (2, 0, 0), (2, 1 + offset, 0)), ["C", "B2"])
     if close:
         mb.cut_joint("B", "B2", name="loop closure")
     if extra_link:
@@ -40,8 +30,3 @@ def four_bar():
     """The four-bar builder factory ``four_bar(close=True, extra_link=False, offset=0.0)``."""
     return _four_bar
 
-
-@pytest.fixture
-def rod_inertia():
-    """The slender-rod inertia factory ``rod_inertia(p, q, m=1.0)``."""
-    return rod

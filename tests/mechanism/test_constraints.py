@@ -23,18 +23,10 @@ def _slider_crank_like():
     mb.particle("c", (0.4, 0.1, 0.5))
     body = RigidInertia(1.0, [0.4, 0.1, 0.15], np.diag([0.05, 0.06, 0.07]))
     mb.body("slider", body, ["b0", "b1", "b2", "b3"], on_negative="ignore")
-    mb.body("rod", RigidInertia(0.5, [0.2, 0.05, 0.75], _rod_inertia((0, 0, 1.0), (0.4, 0.1, 0.5), 0.5),
-                                degenerate_ok=True), ["piv", "c"], on_negative="ignore")
+    mb.body("rod", RigidInertia.slender_rod(0.5, (0, 0, 1.0), (0.4, 0.1, 0.5)), ["piv", "c"], on_negative="ignore")
     mb.cut_joint("b3", "c")
     mb.prismatic(("g0", "g1", "g2"), ("b0", "b1", "b2"))
     return mb.build()
-
-
-def _rod_inertia(p, q, m):
-    u = np.subtract(q, p)
-    ell = np.linalg.norm(u)
-    u = u / ell
-    return m * ell**2 / 12 * (np.eye(3) - np.outer(u, u))
 
 
 @pytest.fixture(scope="module")

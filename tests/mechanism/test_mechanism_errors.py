@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from particlesim import ModelError
+from particlesim.inertia import RigidInertia
 from particlesim.mechanism import MechanismBuilder
 
 
@@ -52,7 +53,7 @@ def test_non_physical_spring_constants(k, c, l0, match, four_bar):
         four_bar().spring_damper("s", "A", "C", k, c, l0)
 
 
-def test_unknown_names_and_bad_bodies(four_bar, rod_inertia):
+def test_unknown_names_and_bad_bodies(four_bar):
     mb = four_bar()
     mb.cut_joint("A", "nowhere", name="typo joint")
     with pytest.raises(ModelError, match="typo joint: unknown particle or point 'nowhere'"):
@@ -60,7 +61,7 @@ def test_unknown_names_and_bad_bodies(four_bar, rod_inertia):
     mb = MechanismBuilder()
     mb.particle("P", (0, 0, 0))
     with pytest.raises(ModelError, match="body 'blob': needs 2 .* got 1"):
-        mb.body("blob", rod_inertia((0, 0, 0), (1, 0, 0)), ["P"])
+        mb.body("blob", RigidInertia.slender_rod(1.0, (0, 0, 0), (1, 0, 0)), ["P"])
     with pytest.raises(ModelError, match="particle 'P' is defined twice"):
         mb.particle("P", (1, 0, 0))
     with pytest.raises(ModelError, match="particle 'Q': position must be 3 finite numbers"):
