@@ -17,8 +17,8 @@ the reference from ours (Dopri8, rtol 1e-13, atol 1e-15). Rows:
   Python (``mj_step`` loop) with the torque added to ``qfrc_passive`` by a Python ``mjcb_passive`` at
   every RK4 stage at the stage time ``d.time`` (a torque held over a step would be first order, MUJOCO-TWINS.md;
   tests/test_krang_torque_twin.py measures fourth-order convergence), and Euler and implicitfast (first order)
-  over a short sweep. The callback is a Python function: its cost is part of MuJoCo C's rows and is measured
-  separately (a no-op callback against none) in ``callback_overhead``;
+  over a short sweep, all three labelled "Python loop, Python callback"; the interpreter cost of that callback is
+  measured separately (a no-op callback against none) in ``callback_overhead``;
 * MJX twin: :func:`benchmarks._mjx_twins.forced_rk4_rollout` (MuJoCo's RK4 tableau around ``mjx.forward``, torque
   per stage in ``qfrc_applied``), jitted once, the MJX model an argument so other steps do not recompile.
 

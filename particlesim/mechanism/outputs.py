@@ -15,10 +15,16 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ..errors import ModelError
 from ..spatial import unskew
 from .model import Mechanism
 
 __all__ = ["body_poses", "body_com_positions", "body_velocities"]
+
+
+def _check_state(mech: Mechanism, v, what: str) -> None:
+    if jnp.shape(v) != (mech.n_coords,):
+        raise ModelError(f"{what} must have shape ({mech.n_coords},) (3 per free particle), got {jnp.shape(v)}")
 
 
 def _unit(v):
@@ -49,6 +55,7 @@ def body_poses(mech: Mechanism, x: Float[Array, " 3F"]) -> tuple[Float[Array, "B
     """``(R, origin)`` of every body at state ``x``: ``p_world = R p_body + origin`` (body order of
     ``mech.topo.body_names``; :meth:`Mechanism.body_index` gives a body's row)."""
     topo = mech.topo
+    _check_state(mech, x, "x")
     r = mech.all_positions(x)
     n_b = len(topo.body_names)
     rot = jnp.zeros((n_b, 3, 3), r.dtype)
@@ -82,6 +89,7 @@ def body_velocities(mech: Mechanism, x: Float[Array, " 3F"], xd: Float[Array, " 
                     ) -> tuple[Float[Array, "B 3"], Float[Array, "B 3"]]:
     """``(v_com, omega)`` of every body: centre-of-mass velocity and angular velocity, world frame (a rod's
     angular velocity has no component along its axis)."""
+    _check_state(mech, xd, "xd")
     (rot, org), (rot_d, org_d) = jax.jvp(lambda y: body_poses(mech, y), (x,), (xd,))
     omega = jax.vmap(unskew)(rot_d @ jnp.swapaxes(rot, 1, 2))
     rods = np.array([b for b, ps in enumerate(mech.topo.body_particles) if len(ps) == 2], dtype=int)

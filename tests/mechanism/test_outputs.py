@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from particlesim.errors import ModelError
 from particlesim.inertia import RigidInertia
 from particlesim.mechanism import (MechanismBuilder, body_com_positions, body_poses, body_velocities,
                                    simulate_mechanism)
@@ -34,9 +35,7 @@ def _three_kinds():
             on_negative="ignore")
     mb.particle("r0", (0, 1, 0))
     mb.particle("r1", (0.6, 1.3, 0.2))
-    u = np.array([0.6, 0.3, 0.2]) / np.linalg.norm([0.6, 0.3, 0.2])
-    mb.body("rod", RigidInertia(0.5, (0.3, 1.15, 0.1), 0.01 * (np.eye(3) - np.outer(u, u)), degenerate_ok=True),
-            ["r0", "r1"])
+    mb.body("rod", RigidInertia.slender_rod(0.5, (0, 1, 0), (0.6, 1.3, 0.2), moment=0.01), ["r0", "r1"])
     return mb.build(), pose
 
 
@@ -109,3 +108,11 @@ def test_spherical_chain_bodies_match_mujoco():
             np.testing.assert_allclose(w[b], res[:3], atol=MUJOCO_TOL)
             np.testing.assert_allclose(vel[b], res[3:], atol=MUJOCO_TOL)
     assert np.abs(np.asarray(sol.q[-1]) - np.asarray(x0)).max() > 0.05  # the chain really moved
+
+
+def test_wrong_state_shapes_are_refused():
+    (mech, x0), _ = _three_kinds()
+    with pytest.raises(ModelError, match=r"x must have shape \(27,\)"):
+        body_poses(mech, jnp.zeros(26))
+    with pytest.raises(ModelError, match=r"xd must have shape \(27,\)"):
+        body_velocities(mech, jnp.asarray(x0), jnp.zeros((27, 1)))
