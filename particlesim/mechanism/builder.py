@@ -10,7 +10,7 @@ Example (a pendulum)::
     mb = MechanismBuilder(gravity=(0, 0, -9.81))
     mb.ground("O", (0, 0, 0))
     mb.particle("tip", (1, 0, 0))
-    mb.body("rod", RigidInertia(1.0, (0.5, 0, 0), diag(0, 1/12, 1/12), degenerate_ok=True), ["O", "tip"])
+    mb.body("rod", RigidInertia.slender_rod(1.0, (0, 0, 0), (1, 0, 0)), ["O", "tip"])
     mech, x0 = mb.build()
 
 The build works in NumPy on the assembly configuration (its cost grows linearly with the mechanism, apart from
