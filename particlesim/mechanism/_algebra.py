@@ -31,7 +31,18 @@ from .constraints import linear_blocks, point_free_weights, point_weights, point
 from .model import Mechanism
 
 __all__ = ["Prepared", "prepare", "scalar_mass_matrix", "Rows", "rows", "schur", "apply_j", "apply_minv_jt",
-           "residual", "gamma"]
+           "residual", "gamma", "SchurFactor", "factor_schur", "solve_schur", "LSQ_RTOL", "LSQ_REFINE"]
+
+#: Least-squares multipliers: ``S`` is factorised as ``S + mu I`` with ``mu`` this fraction of its largest diagonal
+#: entry (a Tikhonov/Levenberg damping that keeps the factorisation defined when rows are redundant or the
+#: mechanism sits at a singular position, and bounds the force a nearly dependent row can exert at ``1/(2 sqrt mu)``
+#: times its right-hand side, so that the integrator's step control is not stalled by amplified round-off and
+#: local error while a linkage passes a singular position) ...
+LSQ_RTOL = 1e-8
+#: ... followed by this many steps of iterative refinement against ``S`` itself, which recover the undamped
+#: least-squares solution on every direction with ``sigma^2 >> mu`` (error ``(mu / sigma^2)^(k+1)``: 1e-10 relative
+#: at ``sigma^2 = 1e-6 max diag S``), so that a full-rank mechanism agrees with the plain Cholesky solve.
+LSQ_REFINE = 4
 
 
 def scalar_mass_matrix(mech: Mechanism) -> Float[Array, "P P"]:
@@ -192,3 +203,29 @@ def jacobian(prep: Prepared, r: Rows) -> Float[Array, "C F 3"]:
     e = _partner(r.vu)
     j_dot = (prep.d[:, :, None] * e[:, None, :]).reshape(2, n, prep.d.shape[1], 3).sum(axis=0)
     return jnp.concatenate([prep.scale[:, None, None] * j_dot, prep.j_lin], axis=0)
+
+
+class SchurFactor(eqx.Module):
+    """A factorisation of ``S`` for repeated solves: plain Cholesky, or (``least_squares``) Cholesky of the damped
+    ``S + mu I`` kept with ``S`` for the refinement steps (:data:`LSQ_RTOL`, :data:`LSQ_REFINE`)."""
+
+    chol: tuple
+    s: Array | None  # S itself, least squares only
+
+
+def factor_schur(s: Float[Array, "C C"], least_squares: bool) -> SchurFactor:
+    if not least_squares:
+        return SchurFactor(cho_factor(s), None)
+    mu = LSQ_RTOL * jnp.max(jnp.diag(s))
+    return SchurFactor(cho_factor(s + mu * jnp.eye(s.shape[0], dtype=s.dtype)), s)
+
+
+def solve_schur(f: SchurFactor, rhs: Float[Array, " C"]) -> Float[Array, " C"]:
+    """``S^-1 rhs``, or least-squares multipliers when ``S`` is (near) singular. With redundant rows the forces
+    ``J^T lam`` (and so the accelerations and projections) are unique and are what this solve gets right; the
+    split of ``lam`` among redundant rows is not unique and is not normalised here."""
+    lam = cho_solve(f.chol, rhs)
+    if f.s is not None:
+        for _ in range(LSQ_REFINE):
+            lam = lam + cho_solve(f.chol, rhs - f.s @ lam)
+    return lam

@@ -21,6 +21,7 @@ one rank check of the constraint Jacobian) and returns a :class:`~.model.Mechani
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Callable, Optional, Sequence
 
 import jax.numpy as jnp
@@ -31,13 +32,17 @@ from ..inertia import RigidInertia, check_inertia
 from ..particles import N_PRIMARY, check_placement, equivalent_particles
 from .model import AppliedSpec, DotRows, LinearRows, Mechanism, Topology
 
-__all__ = ["MechanismBuilder", "ASSEMBLY_RTOL", "RANK_RTOL"]
+__all__ = ["MechanismBuilder", "ConstraintRank", "RedundantConstraintsWarning", "ASSEMBLY_RTOL", "RANK_RTOL"]
 
 #: Constraints must hold at the given positions to this fraction of the mechanism's size.
 ASSEMBLY_RTOL = 1e-9
 #: Singular values of the constraint Jacobian below this fraction of the largest count as rank loss.
 RANK_RTOL = 1e-9
 _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+class RedundantConstraintsWarning(UserWarning):
+    """A mechanism was built with redundant constraint rows (solved with least-squares multipliers)."""
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -157,9 +162,19 @@ class MechanismBuilder:
         self._applied.append((name, "torque", body, fn))
 
     # ---- build ----
-    def build(self, *, dof: Optional[int] = None, assemble: bool = False,
-              hold: Sequence = ()) -> tuple[Mechanism, np.ndarray]:
+    def build(self, *, dof: Optional[int] = None, assemble: bool = False, hold: Sequence = (),
+              multipliers: str = "auto") -> tuple[Mechanism, np.ndarray]:
         """Check everything and return the mechanism and its assembly state ``x0`` ``(3F,)``.
+
+        ``multipliers`` says how the constraint forces are solved. "exact": one Cholesky factorisation per
+        evaluation; redundant constraints (a Jacobian without full row rank at the assembly) are refused, naming
+        the first redundant row. "least_squares": least-squares multipliers from a damped, refined factorisation
+        (:data:`~._algebra.LSQ_RTOL`), as mature codes do for redundant constraints (Bricard's linkage, a doubled
+        parallelogram) and for mechanisms that pass singular positions (a linkage lying flat); the motion is
+        unique, the split of the force among redundant rows is not. "auto" (default): "exact"
+        when the rows are independent at the assembly, otherwise "least_squares" with a warning that names the
+        redundant rows. Degrees of freedom are counted from the rank. The rank found is left in
+        ``self.constraint_rank`` (a :class:`ConstraintRank`).
 
         With ``assemble=True`` approximate positions (rounded data, a loop drawn open) are first corrected to the
         nearest consistent configuration (:func:`~.assembly.assemble`; body shapes are kept as given, joints and
@@ -172,10 +187,30 @@ class MechanismBuilder:
         that carries no mass. Singular particle placements and non-physical inertias are refused by
         :mod:`particlesim.particles` and :mod:`particlesim.inertia` with the body's name.
         """
+        if multipliers not in ("auto", "exact", "least_squares"):
+            raise ValueError(f"unknown multipliers {multipliers!r}; choose 'auto', 'exact' or 'least_squares'")
         bd = _Build(self)
-        out = bd.run(dof, assemble, tuple(hold))
+        out = bd.run(dof, assemble, tuple(hold), multipliers)
         self.assembly = bd.assembly
+        self.constraint_rank = bd.constraint_rank
         return out
+
+
+@dataclasses.dataclass(frozen=True)
+class ConstraintRank:
+    """The constraint rows of a built mechanism: their number, the rank of their Jacobian at the assembly, the
+    redundant rows (each depends on the rows before it), the degrees of freedom and the multiplier solve used."""
+
+    rows: int
+    rank: int
+    redundant: tuple[str, ...]
+    dof: int
+    multipliers: str
+
+    def __str__(self) -> str:
+        red = f"; redundant: {', '.join(self.redundant)}" if self.redundant else ""
+        return (f"{self.rows} constraint rows of rank {self.rank}, {self.dof} degrees of freedom, "
+                f"{self.multipliers} multipliers{red}")
 
 
 class _Build:
@@ -202,7 +237,7 @@ class _Build:
         self.dot: list[tuple] = []  # (a, b, c, d, scale, kappa, label)
         self.lin: list[tuple] = []  # (a, b, axis, label)
 
-    def run(self, dof, assemble=False, hold=()):
+    def run(self, dof, assemble=False, hold=(), multipliers="auto"):
         self.bodies()
         plans = self.joint_plans()  # may add hidden ground particles (ground-side joint directions)
         self.points()
@@ -214,7 +249,9 @@ class _Build:
         self.assembly = None
         if assemble or hold:
             x0 = self.assemble(mech, x0, hold)
-        _check(self, mech, x0, dof)
+        lsq = _check(self, mech, x0, dof, multipliers)
+        if lsq:
+            mech = dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, least_squares=True))
         return mech, x0
 
     def assemble(self, mech: Mechanism, x0: np.ndarray, hold) -> np.ndarray:
@@ -554,8 +591,9 @@ def _np_mass_matrix(bd: _Build, topo: Topology) -> np.ndarray:
     return m
 
 
-def _check(bd: _Build, mech: Mechanism, x0: np.ndarray, dof: Optional[int]) -> None:
-    """Assembly, spring lengths, rank, degrees of freedom, positive kinetic energy on every admissible motion."""
+def _check(bd: _Build, mech: Mechanism, x0: np.ndarray, dof: Optional[int], multipliers: str = "auto") -> bool:
+    """Assembly, spring lengths, rank, degrees of freedom, positive kinetic energy on every admissible motion.
+    Returns whether the multipliers are solved by least squares; leaves the rank in ``bd.constraint_rank``."""
     topo = mech.topo
     pts = np.asarray(bd.point_world)
     size = max(float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0, 1e-12)
@@ -572,12 +610,24 @@ def _check(bd: _Build, mech: Mechanism, x0: np.ndarray, dof: Optional[int]) -> N
             raise ModelError(f"spring '{name}': its end points coincide (zero length): its direction is undefined")
     n = j.shape[1]
     rank = 0
+    redundant: tuple[str, ...] = ()
     if j.shape[0]:
         sv = np.linalg.svd(j, compute_uv=False)
         rank = int(np.sum(sv > RANK_RTOL * sv[0]))
         if rank < j.shape[0]:
-            raise ModelError(f"over-constrained: {j.shape[0] - rank} redundant constraint(s) among "
-                             f"{j.shape[0]}; first redundant: {_redundant_rows(j, labels)}")
+            redundant = _redundant_rows(j, labels)
+            if multipliers == "exact":
+                raise ModelError(f"over-constrained: {j.shape[0] - rank} redundant constraint(s) among "
+                                 f"{j.shape[0]}; first redundant: {redundant[0]} (build with "
+                                 "multipliers='least_squares' to keep them)")
+    lsq = multipliers == "least_squares" or (multipliers == "auto" and bool(redundant))
+    bd.constraint_rank = ConstraintRank(rows=int(j.shape[0]), rank=rank, redundant=redundant, dof=n - rank,
+                                        multipliers="least_squares" if lsq else "exact")
+    if redundant and multipliers == "auto":
+        warnings.warn(f"{len(redundant)} redundant constraint row(s) among {j.shape[0]} (rank {rank}): "
+                      f"{', '.join(redundant[:6])}{' ...' if len(redundant) > 6 else ''}; the motion is unique and "
+                      "solved with least-squares multipliers. Pass multipliers='least_squares' to "
+                      "accept this silently or 'exact' to refuse it", RedundantConstraintsWarning, stacklevel=4)
     if dof is not None and n - rank != dof:
         what = "under" if n - rank > dof else "over"
         raise ModelError(f"{what}-constrained: the mechanism has {n - rank} degrees of freedom, expected {dof}")
@@ -592,17 +642,20 @@ def _check(bd: _Build, mech: Mechanism, x0: np.ndarray, dof: Optional[int]) -> N
             raise ModelError("a free motion of the mechanism carries no mass (kinetic energy matrix on the "
                              f"admissible motions is singular, eigenvalues {ev[:3].tolist()}): add mass or "
                              "constraints")
+    return lsq
 
 
-def _redundant_rows(j: np.ndarray, labels: list[str]) -> str:
-    """Label of the first row that depends on the rows before it (one QR-updated pass)."""
+def _redundant_rows(j: np.ndarray, labels: list[str]) -> tuple[str, ...]:
+    """Labels of the rows that depend on the rows before them (one Gram-Schmidt pass, reorthogonalised)."""
     kept = np.zeros((0, j.shape[1]))
     scale = np.max(np.linalg.norm(j, axis=1))
+    out = []
     for i in range(j.shape[0]):
         r = j[i] - (kept.T @ (kept @ j[i]) if len(kept) else 0.0)
         r = r - (kept.T @ (kept @ r) if len(kept) else 0.0)
         nr = np.linalg.norm(r)
         if nr <= RANK_RTOL * scale:
-            return labels[i]
+            out.append(labels[i])
+            continue
         kept = np.vstack([kept, r / nr])
-    return "?"
+    return tuple(out) if out else ("?",)

@@ -51,6 +51,9 @@ def chain_plan(mech: Mechanism) -> ChainPlan:
     if len(topo.linear) or topo.spring_names or topo.tyre_names or mech.applied or \
             len(topo.point_names) != topo.n_particles:
         raise ModelError("recursive chain solve: only bodies, shared particles and gravity are supported")
+    if topo.least_squares:
+        raise ModelError("recursive chain solve: least-squares multipliers (redundant rows or singular positions) "
+                         "need solve='dense'")
     kinds = {len(p) for p in topo.body_particles}
     if len(kinds) != 1 or len(topo.body_particles) < 1:
         raise ModelError("recursive chain solve: every body must be of one kind")

@@ -24,11 +24,14 @@ instead (:func:`accelerations_kkt`, LU), the reference for every mechanism.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
-from jax.scipy.linalg import cho_factor, cho_solve
+import jax.scipy.linalg  # noqa: F401
 from jaxtyping import Array, Float
 
-from ._algebra import Prepared, apply_j, apply_minv_jt, gamma, jacobian, prepare, residual, rows, schur
+from ._algebra import (Prepared, apply_j, apply_minv_jt, factor_schur, gamma, jacobian, prepare, residual, rows, schur,
+                       solve_schur)
+from ._algebra import LSQ_REFINE, LSQ_RTOL
 from ._algebra import scalar_mass_matrix  # noqa: F401  (re-exported for Mechanism.scalar_mass_matrix)
 from .forces import generalized_point_forces, point_forces, potential_energy, torque_forces
 from .model import Mechanism
@@ -62,7 +65,7 @@ def _solve(mech: Mechanism, prep: Prepared, t, x, xd, baumgarte: float):
             prep, mech.dot_kappa, r, x)
     f_pts, q_torque = _forces(mech, prep, t, x, xd)
     if mech.topo.saddle_point:
-        return _solve_kkt(prep, r, g, f_pts, q_torque)
+        return _solve_kkt(prep, r, g, f_pts, q_torque, mech.topo.least_squares)
     minv_q = prep.minv_qg
     if f_pts is not None:
         minv_q = minv_q + prep.mwk @ f_pts
@@ -70,12 +73,13 @@ def _solve(mech: Mechanism, prep: Prepared, t, x, xd, baumgarte: float):
         minv_q = minv_q + prep.minv @ q_torque.reshape(-1, 3)
     if g.shape[0] == 0:
         return minv_q.reshape(-1), g
-    lam = cho_solve(cho_factor(schur(prep, r)), apply_j(prep, r, minv_q) - g)
+    lam = solve_schur(factor_schur(schur(prep, r), mech.topo.least_squares), apply_j(prep, r, minv_q) - g)
     return (minv_q - apply_minv_jt(prep, r, lam)).reshape(-1), lam
 
 
-def _solve_kkt(prep: Prepared, r, g, f_pts, q_torque):
-    """The full saddle-point system by LU (any mechanism, ``M`` singular included)."""
+def _solve_kkt(prep: Prepared, r, g, f_pts, q_torque, least_squares: bool = False):
+    """The full saddle-point system by LU (any mechanism, ``M`` singular included); with ``least_squares`` the
+    multiplier block is damped (``-mu I``) and refined against the undamped system (minimum-norm multipliers)."""
     q = prep.qg.reshape(-1)
     if f_pts is not None:
         q = q + generalized_point_forces(prep.wk, f_pts)
@@ -86,7 +90,15 @@ def _solve_kkt(prep: Prepared, r, g, f_pts, q_torque):
     m = jnp.kron(prep.ms, jnp.eye(3, dtype=prep.ms.dtype))
     n, c = m.shape[0], j.shape[0]
     kkt = jnp.block([[m, j.T], [j, jnp.zeros((c, c), dtype=m.dtype)]])
-    sol = jnp.linalg.solve(kkt, jnp.concatenate([q, g]))
+    rhs = jnp.concatenate([q, g])
+    if not least_squares:
+        sol = jnp.linalg.solve(kkt, rhs)
+        return sol[:n], sol[n:]
+    mu = LSQ_RTOL * jnp.max(jnp.abs(m))
+    lu = jax.scipy.linalg.lu_factor(kkt - jnp.diag(jnp.concatenate([jnp.zeros(n, m.dtype), jnp.full(c, mu, m.dtype)])))
+    sol = jax.scipy.linalg.lu_solve(lu, rhs)
+    for _ in range(LSQ_REFINE):
+        sol = sol + jax.scipy.linalg.lu_solve(lu, rhs - kkt @ sol)
     return sol[:n], sol[n:]
 
 

@@ -24,13 +24,13 @@ from __future__ import annotations
 import diffrax
 import jax
 import jax.numpy as jnp
-from jax.scipy.linalg import cho_factor, cho_solve
 
 from .. import _ode
 from .._ode import ADJOINTS, Solution
 from ..errors import ModelError
 from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_project
-from ._algebra import Prepared, apply_j, apply_minv_jt, jacobian, prepare, residual, rows, schur
+from ._algebra import (Prepared, apply_j, apply_minv_jt, factor_schur, jacobian, prepare, residual, rows,
+                       schur, solve_schur)
 from .dynamics import _solve
 from .model import Mechanism
 
@@ -42,12 +42,13 @@ _VELOCITY_PASSES = 2
 
 def _project_euclid(mech: Mechanism, prep: Prepared, x, xd):
     """Minimum-norm (``J J^T``) projection for mechanisms with a singular mass matrix (LU, 3 Gauss–Newton steps)."""
+    lsq = mech.topo.least_squares
     for _ in range(3):
         r = rows(prep, x)
         j = jacobian(prep, r).reshape(mech.n_constraints, -1)
-        x = x - j.T @ jnp.linalg.solve(j @ j.T, residual(prep, mech.dot_kappa, r, x))
+        x = x - j.T @ solve_schur(factor_schur(j @ j.T, lsq), residual(prep, mech.dot_kappa, r, x))
     j = jacobian(prep, rows(prep, x)).reshape(mech.n_constraints, -1)
-    return x, xd - j.T @ jnp.linalg.solve(j @ j.T, j @ xd)
+    return x, xd - j.T @ solve_schur(factor_schur(j @ j.T, lsq), j @ xd)
 
 
 def project_prepared(mech: Mechanism, prep: Prepared, x, xd):
@@ -57,13 +58,14 @@ def project_prepared(mech: Mechanism, prep: Prepared, x, xd):
     if mech.topo.saddle_point:
         return _project_euclid(mech, prep, x, xd)
     r0 = r = rows(prep, x)
-    factor = cho_factor(schur(prep, r0))  # one factorisation at the stepped state serves every pass below
+    # One factorisation at the stepped state serves every pass below (least squares: minimum-norm corrections).
+    factor = factor_schur(schur(prep, r0), mech.topo.least_squares)
     for _ in range(_POSITION_ITERATIONS):
-        lam = cho_solve(factor, residual(prep, mech.dot_kappa, r, x))
+        lam = solve_schur(factor, residual(prep, mech.dot_kappa, r, x))
         x = x - apply_minv_jt(prep, r0, lam).reshape(-1)
         r = rows(prep, x)
     for _ in range(_VELOCITY_PASSES):
-        lam = cho_solve(factor, apply_j(prep, r, xd.reshape(-1, 3)))
+        lam = solve_schur(factor, apply_j(prep, r, xd.reshape(-1, 3)))
         xd = xd - apply_minv_jt(prep, r0, lam).reshape(-1)
     return x, xd
 
