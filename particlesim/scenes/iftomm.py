@@ -16,6 +16,10 @@ A03 (Andrews' squeezing mechanism) lives in :mod:`particlesim.scenes.andrews`.
   constraint rows have rank 23 everywhere (Grübler counts 0 freedoms, the linkage has 1): built with least-squares
   multipliers. As particles: each rod is a spatial set of four primaries, the two particles of the joint axis at
   each end (axis particles ``P{i}`` and ``P{i}a``, ``AXIS_OFFSET`` apart); neighbouring rods share them.
+* :func:`a05_flyball` — A05, the flyball governor: a free vertical shaft spinning at 2π rad/s, a slider on it
+  (prismatic), two rods hinged at the shaft top carrying 5 kg balls, and two stiff spring-dampers (k = 8e5 N/m,
+  c = 4e4 N s/m) from the slider to the rods' midpoints; stiff, for the implicit solvers. Shaft axis z, gravity
+  along −z.
 """
 
 from __future__ import annotations
@@ -25,7 +29,8 @@ import numpy as np
 from ..inertia import RigidInertia
 from ..mechanism import MechanismBuilder
 
-__all__ = ["A01", "a01_pendulum", "A02", "a02_four_bar", "a02_reduced", "A04", "a04_bricard", "AXIS_OFFSET"]
+__all__ = ["A01", "a01_pendulum", "A02", "a02_four_bar", "a02_reduced", "A04", "a04_bricard", "AXIS_OFFSET",
+           "A05", "a05_flyball", "flyball_slider_height", "angular_momentum_z"]
 
 #: A01 data: mass [kg], length [m], gravity [m/s^2], time span [s], output samples.
 A01 = dict(mass=1.0, length=1.0, g=9.81, t_end=2000.0, outputs=4000)
@@ -101,3 +106,105 @@ def a04_bricard(g: float = A04["g"]):
         mb.body(f"rod{i}", RigidInertia(m, (p + q) / 2, inertia, name=f"rod{i}"),
                 [f"P{i}", f"P{i}a", f"P{i + 1}", f"P{i + 1}a"], on_negative="ignore")
     return mb.build(dof=1, multipliers="least_squares")
+
+
+#: A05 data (the OpenSim port's values): prism density [kg/m^3], shaft/rod length and section [m], slider cube side,
+#: ball mass [kg], pivot offset from the shaft axis [m], spring constants, initial slider height [m] and rod angle
+#: below the horizontal [rad], shaft rate [rad/s], gravity, time span [s]; the spec's derived initial I_z and H_z.
+A05 = dict(density=3000.0, length=1.0, section=0.01, cube=0.1, ball=5.0, offset=0.05, stiffness=8e5,
+           damping=4e4, free_length=0.5, s0=0.5, alpha0=np.pi / 6, omega0=2 * np.pi, g=9.81, t_end=10.0,
+           iz0=8.573517, hz0=53.868999)
+
+
+def _prism(mass, sides, axis):
+    """Inertia about the centre of a uniform box with edge lengths ``sides`` along the orthonormal ``axis`` rows."""
+    a, b, c = sides
+    mom = mass / 12 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
+    axes = np.asarray(axis, dtype=float)
+    return axes.T @ np.diag(mom) @ axes
+
+
+def a05_flyball(g: float = A05["g"]):
+    """The A05 flyball governor at t = 0; returns ``(mech, x0, xd0)`` (everything turning with the shaft at 2π rad/s).
+
+    Particles: the shaft holds ground particles ``O`` (bottom) and ``T`` (top) on its axis and the pin particles
+    ``P1``, ``P1y`` of rod 1's hinge (``P1`` = (0.05, 0, 1), ``P1y`` one offset along the pin axis y); rod 2 is hinged
+    at the shaft points ``S2``/``S2y`` (a cut joint and a point on the pin line). Each rod: pin particles, tip
+    ``E{i}`` (with the ball) and ``K{i}`` beside the pivot in the rods' plane; midpoints ``M{i}``. The slider: ``B0``,
+    ``B1`` on the axis, ``Bx``, ``By`` beside it, on a prismatic joint along the shaft (``O``, ``T``, ``P1``);
+    springs ``Bx``-``M1`` and ``Bm``-``M2`` (``Bm`` the slider point at -0.05 along x)."""
+    c = A05
+    rho, ell, a, off = c["density"], c["length"], c["section"], c["offset"]
+    m_prism = rho * ell * a * a
+    m_cube = rho * c["cube"] ** 3
+    mb = MechanismBuilder(gravity=(0.0, 0.0, -g))
+    z, s0, al = ell, c["s0"], c["alpha0"]
+    mb.ground("O", (0.0, 0.0, 0.0))
+    mb.ground("T", (0.0, 0.0, z))
+    mb.particle("P1", (off, 0.0, z))
+    mb.particle("P1y", (off, off, z))
+    mb.body("shaft", RigidInertia(m_prism, (0.0, 0.0, ell / 2), _prism(m_prism, (a, a, ell), np.eye(3)),
+                                  name="shaft"), ["O", "T", "P1", "P1y"], on_negative="ignore")
+    mb.point("S2", "shaft", (-off, 0.0, z))
+    mb.point("S2y", "shaft", (-off, off, z))
+    for i, sgn in ((1, 1.0), (2, -1.0)):
+        pivot = np.array([sgn * off, 0.0, z])
+        d = np.array([sgn * np.cos(al), 0.0, -np.sin(al)])
+        n = np.array([sgn * np.sin(al), 0.0, np.cos(al)])
+        tip, mid = pivot + ell * d, pivot + ell / 2 * d
+        if i == 2:
+            mb.particle("P2", pivot)
+            mb.particle("P2y", pivot + (0.0, off, 0.0))
+        mb.particle(f"E{i}", tip)
+        mb.particle(f"K{i}", pivot + off * n)
+        mass = m_prism + c["ball"]
+        com = (m_prism * mid + c["ball"] * tip) / mass
+        rod = _prism(m_prism, (ell, a, a), np.stack([d, (0.0, 1.0, 0.0), n]))
+        inertia = rod + m_prism * _shift(mid - com) + c["ball"] * _shift(tip - com)
+        mb.body(f"rod{i}", RigidInertia(mass, com, inertia, name=f"rod{i}"), [f"P{i}", f"P{i}y", f"E{i}", f"K{i}"],
+                on_negative="ignore")
+        mb.point(f"M{i}", f"rod{i}", mid)
+    mb.cut_joint("P2", "S2", name="rod2 hinge")
+    mb.on_line("P2y", "S2", ("S2", "S2y"), "T", name="rod2 hinge axis")
+    h = c["cube"] / 2
+    mb.particle("B0", (0.0, 0.0, s0 - h))
+    mb.particle("B1", (0.0, 0.0, s0 + h))
+    mb.particle("Bx", (off, 0.0, s0))
+    mb.particle("By", (0.0, off, s0))
+    mb.body("slider", RigidInertia(m_cube, (0.0, 0.0, s0), _prism(m_cube, (2 * h,) * 3, np.eye(3)), name="slider"),
+            ["B0", "B1", "Bx", "By"], on_negative="ignore")
+    mb.point("Bm", "slider", (-off, 0.0, s0))
+    mb.prismatic(("O", "T", "P1"), ("B0", "B1", "Bx"), name="slider on shaft")
+    for i, at in ((1, "Bx"), (2, "Bm")):
+        mb.spring_damper(f"spring{i}", at, f"M{i}", c["stiffness"], c["damping"], c["free_length"])
+    mech, x0 = mb.build(dof=4)
+    w = c["omega0"]
+    xyz = np.asarray(x0).reshape(-1, 3)
+    xd0 = (w * np.stack([-xyz[:, 1], xyz[:, 0], np.zeros(len(xyz))], axis=1)).reshape(-1)
+    return mech, x0, xd0
+
+
+def _shift(r):
+    """Parallel-axis term ``|r|^2 I - r r^T`` (per unit mass)."""
+    r = np.asarray(r, dtype=float)
+    return (r @ r) * np.eye(3) - np.outer(r, r)
+
+
+def flyball_slider_height(mech, x):
+    """The slider's centre height ``s`` from states ``x`` ``(..., 3F)``."""
+    import jax.numpy as jnp
+
+    x = jnp.asarray(x)
+    b0, b1 = x[..., mech.free_slice("B0")], x[..., mech.free_slice("B1")]
+    return 0.5 * (b0[..., 2] + b1[..., 2])
+
+
+def angular_momentum_z(mech, x, xd):
+    """Angular momentum about the z axis through the origin, ``sum_ij M_ij (x_i v_yj - y_i v_xj)`` over the
+    particles (exact for the equivalent particle sets, whose momenta equal the bodies'); ground particles are at
+    rest and on the axis here."""
+    import jax.numpy as jnp
+
+    m = mech.scalar_mass_matrix()[np.ix_(mech.free, mech.free)]
+    r, v = jnp.asarray(x).reshape(-1, 3), jnp.asarray(xd).reshape(-1, 3)
+    return jnp.sum(m * (r[:, None, 0] * v[None, :, 1] - r[:, None, 1] * v[None, :, 0]))
