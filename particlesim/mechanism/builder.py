@@ -41,6 +41,10 @@ RANK_RTOL = 1e-9
 _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
+#: Name of the hidden ground particle at the origin of a planar mechanism's plane.
+_PLANE = "(plane origin)"
+
+
 class RedundantConstraintsWarning(UserWarning):
     """A mechanism was built with redundant constraint rows (solved with least-squares multipliers)."""
 
@@ -52,10 +56,18 @@ def _unit(v: np.ndarray) -> np.ndarray:
 class MechanismBuilder:
     """Collects a mechanism description; :meth:`build` checks it and returns ``(Mechanism, x0)``."""
 
-    def __init__(self, gravity: Sequence[float] = (0.0, 0.0, -9.81)):
-        self.gravity = np.asarray(gravity, dtype=float)
-        if self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity)):
-            raise ModelError(f"gravity must be 3 finite numbers, got {np.asarray(gravity).tolist()}")
+    def __init__(self, gravity: Optional[Sequence[float]] = None, *, planar: bool = False):
+        """``gravity`` (default 9.81 along -z; along -y when ``planar``). ``planar=True``: a planar mechanism in the
+        x-y plane. Positions and gravity may then be given as ``(x, y)``; bodies are rods (2 primaries, e.g.
+        :meth:`rod`) or planar sets (3 primaries, e.g. :meth:`planar_body` from mass, polar moment and centre of
+        mass); every free particle is held in the plane (one row each), so out-of-plane freedoms do not exist and
+        ``dof`` counts the freedoms in the plane; cut joints close loops with their two in-plane rows, prismatic
+        joints are two rows (both axis points of the slider on the guide's line), a point kept on a line one row.
+        Revolute joints are shared particles, as in 3-D. The state stays ``(3F,)`` with ``z = 0``."""
+        self.planar = bool(planar)
+        if gravity is None:
+            gravity = (0.0, -9.81, 0.0) if self.planar else (0.0, 0.0, -9.81)
+        self.gravity = self._vec(gravity, "gravity")
         self._particles: dict[str, tuple[np.ndarray, bool]] = {}
         self._bodies: list[tuple[str, RigidInertia, tuple[str, ...], tuple, str]] = []
         self._joints: list[tuple[str, tuple[str, ...], str, Optional[float]]] = []  # kind, names, label, length
@@ -64,13 +76,23 @@ class MechanismBuilder:
         self._tyres: list[tuple] = []
         self._applied: list[tuple] = []
 
+    def _vec(self, xyz, what: str) -> np.ndarray:
+        """A 3-vector from 3 numbers (or 2 in a planar mechanism, z = 0); a planar one must have z = 0."""
+        p = np.asarray(xyz, dtype=float)
+        if self.planar and p.shape == (2,):
+            p = np.append(p, 0.0)
+        n = "2 (x, y) or 3" if self.planar else "3"
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ModelError(f"{what}: must be {n} finite numbers, got {np.asarray(xyz).tolist()}")
+        if self.planar and p[2] != 0.0:
+            raise ModelError(f"{what}: z = {float(p[2])!r}, off the plane of a planar mechanism (z = 0)")
+        return p
+
     # ---- particles ----
     def _add_particle(self, name: str, xyz, ground: bool) -> str:
         if name in self._particles or name in self._points:
             raise ModelError(f"particle '{name}' is defined twice")
-        p = np.asarray(xyz, dtype=float)
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise ModelError(f"particle '{name}': position must be 3 finite numbers, got {np.asarray(xyz).tolist()}")
+        p = self._vec(xyz, f"particle '{name}': position")
         self._particles[name] = (p, ground)
         return name
 
@@ -94,8 +116,39 @@ class MechanismBuilder:
                              f"got {len(primaries)}")
         if len(set(primaries)) != len(primaries):
             raise ModelError(f"body '{name}': a primary particle is listed twice: {list(primaries)}")
+        if self.planar and len(primaries) == 4:
+            raise ModelError(f"body '{name}': a planar mechanism's bodies are rods (2 primaries) or planar sets (3), "
+                             "got 4")
         self._bodies.append((name, inertia, tuple(primaries), pose, on_negative))
         return name
+
+    def _position(self, n: str, what: str) -> np.ndarray:
+        if n not in self._particles:
+            raise ModelError(f"{what}: unknown particle '{n}' (declare it with particle(...) or ground(...) first)")
+        return self._particles[n][0]
+
+    def rod(self, name: str, a: str, b: str, mass: float, *, com=None, moment: Optional[float] = None,
+            on_negative: str = "warn") -> str:
+        """A slender rod body between the particles ``a`` and ``b`` (at their given positions): uniform by
+        default, or with centre of mass ``com`` on the line and transverse ``moment`` about it
+        (:meth:`~particlesim.inertia.RigidInertia.slender_rod`)."""
+        p, q = self._position(a, f"rod '{name}'"), self._position(b, f"rod '{name}'")
+        c = None if com is None else self._vec(com, f"rod '{name}': centre of mass")
+        inertia = RigidInertia.slender_rod(mass, p, q, com=c, moment=moment, name=name)
+        return self.body(name, inertia, [a, b], on_negative=on_negative)
+
+    def planar_body(self, name: str, mass: float, moment: float, com, primaries: Sequence[str], *,
+                    on_negative: str = "warn") -> str:
+        """A body moving in the x-y plane from its mass, polar moment of inertia ``moment`` about its centre of mass
+        and centre of mass ``com`` (global, at assembly); three primaries in the plane (Attia's planar set). The
+        in-plane moments, which planar motion never uses, are taken as ``moment / 2`` each."""
+        if len(primaries) != 3:
+            raise ModelError(f"planar body '{name}': needs 3 primary particles, got {len(primaries)}")
+        c = self._vec(com, f"planar body '{name}': centre of mass")
+        if not np.isfinite(moment) or moment < 0:
+            raise ModelError(f"planar body '{name}': polar moment must be finite and non-negative, got {moment!r}")
+        inertia = RigidInertia(mass, c, np.diag([moment / 2, moment / 2, moment]), name=name)
+        return self.body(name, inertia, primaries, on_negative=on_negative)
 
     def link(self, a: str, b: str, *, name: Optional[str] = None, length: Optional[float] = None) -> None:
         """A massless rigid link (distance constraint) between particles or points ``a`` and ``b``; its length is
@@ -128,7 +181,7 @@ class MechanismBuilder:
         plane of its primaries, a point of a rod on its line (they are affine combinations of the primaries)."""
         if name in self._points or name in self._particles:
             raise ModelError(f"point '{name}' is defined twice")
-        self._points[name] = (body, np.asarray(xyz, dtype=float))
+        self._points[name] = (body, self._vec(xyz, f"point '{name}': position"))
         return name
 
     def spring_damper(self, name: str, a: str, b: str, stiffness: float, damping: float,
@@ -240,9 +293,19 @@ class _Build:
     def run(self, dof, assemble=False, hold=(), multipliers="auto"):
         self.bodies()
         plans = self.joint_plans()  # may add hidden ground particles (ground-side joint directions)
+        if self.mb.planar:  # the plane's origin, a hidden ground particle every free particle is held to
+            self.index[_PLANE] = len(self.names)
+            self.names.append(_PLANE)
+            self.pos.append(np.zeros(3))
+            self.is_ground.append(True)
         self.points()
         self.body_rows()
         self.joints(plans)
+        if self.mb.planar:
+            plane = self.index[_PLANE]
+            for i in range(len(self.names)):
+                if not self.is_ground[i]:
+                    self.lin.append((i, plane, (0.0, 0.0, 1.0), f"{self.names[i]} in plane"))
         self.check_dangling()
         mech = self.mechanism()
         x0 = np.stack([self.pos[i] for i in mech.topo.free]).reshape(-1) if mech.topo.free else np.zeros(0)
@@ -358,6 +421,8 @@ class _Build:
                 # gradient never vanishes (in a planar model too, where b2 lies in the plane of the axis and n1).
                 host = self.host(pnames[:3], label)
                 dirs = (n1, np.cross(u, n1), _unit(np.cross(u, wb)))
+            if self.mb.planar:
+                dirs = dirs[:1]  # the in-plane normal; the out-of-plane rows are left out (see joints)
             origin = world[1] if kind == "on_line" else (world[0] if kind == "prismatic" else None)
             names = []
             if host == -1:  # a ground-side direction: a hidden ground particle
@@ -431,6 +496,7 @@ class _Build:
         return self.point_index[n]
 
     def joints(self, plans):
+        planar = self.mb.planar
         for kind, pnames, label, length, host, origin, dirs, ell, ground_names in plans:
             ks = tuple(self.pidx(n, label) for n in pnames)
             world = [self.point_world[k] for k in ks]
@@ -439,7 +505,7 @@ class _Build:
                 self.dot.append((ks[0], ks[1], ks[0], ks[1], 0.5, 0.5 * d**2, label))
                 continue
             if kind == "coincide":
-                for axis, c in zip(_AXES, "xyz"):
+                for axis, c in list(zip(_AXES, "xyz"))[:2 if planar else 3]:
                     self.lin.append((ks[0], ks[1], axis, f"{label} ({c})"))
                 continue
             if host == -1:
@@ -448,15 +514,18 @@ class _Build:
                 n = [self.add_point(f"{label} / direction {j + 1}", host, origin + ell * d)
                      for j, d in enumerate(dirs)]
             # rows s (N - O).(p - q) with N - O = ell * (unit direction fixed in the host)
+            # In a planar mechanism n1 is the in-plane normal of the line and the out-of-plane rows are left out
+            # (the particles are held in the plane; a slider with both axis points on the line cannot turn).
             if kind == "on_line":
-                for j, c in enumerate(("n1", "n2")):
+                for j, c in enumerate(("n1", "n2")[:1 if planar else 2]):
                     self.dot.append((n[j], ks[1], ks[0], ks[1], 1.0 / ell, 0.0, f"{label} ({c})"))
             else:
                 a0, b0, b1, b2 = ks[0], ks[3], ks[4], ks[5]
                 for p, tag in ((b0, "axis 1"), (b1, "axis 2")):
-                    for j, c in enumerate("ab"):
+                    for j, c in enumerate("ab"[:1 if planar else 2]):
                         self.dot.append((n[j], a0, p, a0, 1.0 / ell, 0.0, f"{label} ({tag}{c})"))
-                self.dot.append((n[2], a0, b2, b0, 1.0 / ell, 0.0, f"{label} (rotation)"))
+                if not planar:
+                    self.dot.append((n[2], a0, b2, b0, 1.0 / ell, 0.0, f"{label} (rotation)"))
 
     def check_dangling(self):
         constrained = set()
@@ -502,7 +571,7 @@ class _Build:
             spring_names=tuple(s[0] for s in springs), spring_points=tuple(s[1] for s in springs),
             tyre_names=tuple(t[0] for t in tyres), tyre_points=tuple(t[1] for t in tyres),
             tyre_normals=tuple(t[2] for t in tyres),
-            saddle_point=any(i not in in_body for i in free))
+            saddle_point=any(i not in in_body for i in free), planar=mb.planar)
         if not topo.saddle_point and free:
             ev = np.linalg.eigvalsh(_np_mass_matrix(self, topo))
             if ev[0] <= 1e-12 * max(ev[-1], 1e-300):  # singular particle mass matrix: solve the full KKT system

@@ -100,6 +100,7 @@ class Topology:
     tyre_normals: tuple[tuple[float, float, float], ...]
     saddle_point: bool = False  # the mass matrix is singular (a free particle in no body): solve the full KKT
     least_squares: bool = False  # minimum-norm (damped, refined) multipliers: redundant rows, singular positions
+    planar: bool = False  # built as a planar mechanism (x-y plane, every free particle held in it)
 
     def _key(self) -> tuple:
         return tuple(getattr(self, f.name) for f in dataclasses.fields(self))

@@ -19,7 +19,7 @@ from ..errors import ModelError
 from ..spatial import unskew
 from .model import Mechanism
 
-__all__ = ["body_poses", "body_com_positions", "body_velocities"]
+__all__ = ["body_poses", "body_com_positions", "body_velocities", "body_angles"]
 
 
 def _check_state(mech: Mechanism, v, what: str) -> None:
@@ -100,3 +100,21 @@ def body_velocities(mech: Mechanism, x: Float[Array, " 3F"], xd: Float[Array, " 
         omega = omega.at[rods].set(w - jnp.sum(w * u, axis=1, keepdims=True) * u)
     v = jnp.einsum("bij,bj->bi", rot_d, mech.body_com) + org_d
     return v, omega
+
+
+def body_angles(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " B"]:
+    """Rotation angle about z of every body of a planar mechanism from its given (assembly) orientation, in
+    ``(-pi, pi]`` (wrapped; ``numpy.unwrap`` a trajectory), counter-clockwise positive; from the direction between
+    the body's first two primaries."""
+    topo = mech.topo
+    if not topo.planar:
+        raise ModelError("body_angles: the mechanism is not planar (build it with MechanismBuilder(planar=True)); "
+                         "use body_poses for spatial rotations")
+    _check_state(mech, x, "x")
+    r = mech.all_positions(x)
+    first = np.asarray([p[0] for p in topo.body_particles], dtype=int)
+    second = np.asarray([p[1] for p in topo.body_particles], dtype=int)
+    d_w = r[second] - r[first]
+    d_l = mech.body_primaries[:, 1] - mech.body_primaries[:, 0]
+    cross = d_l[:, 0] * d_w[:, 1] - d_l[:, 1] * d_w[:, 0]
+    return jnp.arctan2(cross, jnp.sum(d_l[:, :2] * d_w[:, :2], axis=1))

@@ -92,12 +92,14 @@ def _rod(m: float, com2: np.ndarray, j: float, p: np.ndarray, q: np.ndarray) -> 
     return RigidInertia.slender_rod(m, (*p, 0.0), (*q, 0.0), com=(*com2, 0.0), moment=j)
 
 
-def andrews_mechanism(q0=Q0):
-    """Build the mechanism at joint angles ``q0`` (at rest); returns ``(mech, x0)``."""
+def andrews_mechanism(q0=Q0, planar: bool = False):
+    """Build the mechanism at joint angles ``q0`` (at rest); returns ``(mech, x0)``. ``planar=True`` builds it as a
+    planar mechanism (:class:`~particlesim.mechanism.MechanismBuilder` ``planar``: one degree of freedom, no
+    out-of-plane freedoms); by default it lives in 3-D, as the benchmarks time it."""
     c = CONST
     pts = _points(np.asarray(q0, dtype=float))
     xyz = {k: np.append(v, 0.0) for k, v in pts.items()}
-    mb = MechanismBuilder(gravity=(0.0, 0.0, 0.0))
+    mb = MechanismBuilder(gravity=(0.0, 0.0, 0.0), planar=planar)
     for g in ("O", "A", "B", "C"):
         mb.ground(g, xyz[g])
     for p in ("F", "E", "G", "H", "D", "P1", "P5", "P7"):
@@ -112,7 +114,7 @@ def andrews_mechanism(q0=Q0):
     mb.body("HA", _lamina(c["m7"], pts["com7"], c["I7"]), ["A", "H", "P7"], **kw)
     mb.spring_damper("spring", "D", "C", c["c0"], 0.0, c["l0"])
     mb.applied_torque("motor", "crank", _Motor(c["mom"]))
-    return mb.build()
+    return mb.build(dof=1 if planar else None)
 
 
 class _Motor:

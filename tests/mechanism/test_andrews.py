@@ -75,3 +75,13 @@ def test_mujoco_twin_converges_to_the_reference(run):
     assert errs[1] <= TWIN_ANGLE_RTOL
     assert errs[0] / errs[1] >= 3.0  # converging (second order), so the twin and ours describe one mechanism
     assert np.max(np.abs(q_ours[-1] - an.REFERENCE_Q) / np.abs(an.REFERENCE_Q)) < errs[1] / 100
+
+
+def test_planar_build_matches_the_reference():
+    """The same mechanism built planar (one freedom, every particle held in the plane) reaches the same state."""
+    mech, x0 = an.andrews_mechanism(planar=True)
+    assert mech.topo.planar
+    sol = simulate_mechanism(mech, x0, jnp.zeros_like(x0), 0.0, an.REFERENCE_T, solver="dopri8", rtol=1e-13,
+                             atol=1e-16, saveat_ts=TS, max_steps=200_000)
+    q, _ = an.joint_angles(mech, np.asarray(sol.q), np.asarray(sol.qd))
+    np.testing.assert_allclose(q[-1], an.REFERENCE_Q, rtol=ANGLE_RTOL, atol=0)
