@@ -9,7 +9,7 @@ from .dynamics import Prepared, prepare, mass_properties, accelerations, acceler
 from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
 from .integrate import project, simulate_mechanism
 from .model import Mechanism
-from .outputs import body_angles, body_com_positions, body_poses, body_velocities
+from .outputs import body_angles, body_com_positions, body_poses, body_velocities, cut_joint_forces
 
 __all__ = [
     "Mechanism",
@@ -43,4 +43,5 @@ __all__ = [
     "body_com_positions",
     "body_velocities",
     "body_angles",
+    "cut_joint_forces",
 ]

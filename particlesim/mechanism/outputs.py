@@ -19,7 +19,7 @@ from ..errors import ModelError
 from ..spatial import unskew
 from .model import Mechanism
 
-__all__ = ["body_poses", "body_com_positions", "body_velocities", "body_angles"]
+__all__ = ["body_poses", "body_com_positions", "body_velocities", "body_angles", "cut_joint_forces"]
 
 
 def _check_state(mech: Mechanism, v, what: str) -> None:
@@ -118,3 +118,26 @@ def body_angles(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " B"]:
     d_l = mech.body_primaries[:, 1] - mech.body_primaries[:, 0]
     cross = d_l[:, 0] * d_w[:, 1] - d_l[:, 1] * d_w[:, 0]
     return jnp.arctan2(cross, jnp.sum(d_l[:, :2] * d_w[:, :2], axis=1))
+
+
+def cut_joint_forces(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"]) -> dict[str, Array]:
+    """Reaction force of every cut joint ``cut_joint(a, b, name=...)`` at state ``(t, x, xd)``: the force ``(3,)``
+    (global frame, N) that the ``b`` side exerts on point ``a`` (``b`` receives its opposite), from the joint's
+    multipliers (``M xdd + J^T lam = Q``: the rows ``e . (p_a - p_b)`` push ``a`` with ``-lam e``). A planar
+    mechanism's cut joints have no z row (z force 0). With redundant rows (least-squares multipliers) the split of
+    a force among redundant joints is not unique."""
+    from .dynamics import accelerations_and_multipliers
+
+    _check_state(mech, x, "x")
+    _check_state(mech, xd, "xd")
+    _, lam = accelerations_and_multipliers(mech, t, x, xd)
+    lin = mech.topo.linear
+    lam_lin = lam[len(mech.topo.dot):]
+    out: dict[str, Array] = {}
+    for r, (label, axis) in enumerate(zip(lin.labels, lin.axis)):
+        if len(label) < 4 or label[-4:] not in (" (x)", " (y)", " (z)"):
+            continue  # not a cut-joint row (e.g. a planar mechanism's in-plane rows)
+        name = label[:-4]
+        f = out.get(name, jnp.zeros(3, dtype=x.dtype))
+        out[name] = f - lam_lin[r] * jnp.asarray(axis, dtype=x.dtype)
+    return out

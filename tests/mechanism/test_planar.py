@@ -13,14 +13,17 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from particlesim.errors import ModelError
-from particlesim.mechanism import MechanismBuilder, body_angles, body_poses, constraints, simulate_mechanism
+from particlesim.mechanism import (MechanismBuilder, body_angles, body_poses, constraints, cut_joint_forces,
+                                   simulate_mechanism)
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 #: Joint positions of the four-bar, ours against the body-coordinate solution [m] (ours at the README's default
-#: tsit5 rtol 1e-8; measured below).
-FOUR_BAR_TOL = 1e-6
-#: Body angles from body_angles against the same solution [rad].
-ANGLE_TOL = 1e-6
+#: tsit5 rtol 1e-8: measured 1.7e-9).
+FOUR_BAR_TOL = 2e-8
+#: Body angles from body_angles against the same solution [rad] (measured 1.9e-9).
+ANGLE_TOL = 2e-8
+#: Cut-joint reaction against the reference's pin multipliers, relative to the largest (27 N; measured 4e-9).
+FORCE_TOL = 5e-8
 #: Slider and bar centres of mass against the Lagrange solution [m].
 SLOT_TOL = 1e-9
 
@@ -99,7 +102,15 @@ def _body_coordinate_four_bar(lengths, masses, phi0, ts, k=80.0, c=0.5, l0=2.0, 
     q = r.y[:9].T
     a = q[:, 0:2] + l1 / 2 * np.stack([np.cos(q[:, 2]), np.sin(q[:, 2])], axis=1)
     b = q[:, 3:5] + l2 / 2 * np.stack([np.cos(q[:, 5]), np.sin(q[:, 5])], axis=1)
-    return a, b, q[:, 2::3]
+    # the pin B multipliers (rows 4, 5): the force on the coupler at B from the rocker is -lam
+    pin_b = []
+    for y in r.y.T:
+        qq, qd = y[:9], y[9:]
+        j, gam, res = parts(qq, qd)
+        gam = gam - 2 * 50.0 * (j @ qd) - 2500.0 * res
+        kkt = np.block([[np.diag(m), j.T], [j, np.zeros((8, 8))]])
+        pin_b.append(-np.linalg.solve(kkt, np.concatenate([forces(qq, qd), gam]))[9 + 4:9 + 6])
+    return a, b, q[:, 2::3], np.asarray(pin_b)
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +137,7 @@ def test_readme_four_bar_against_body_coordinates(readme):
     phi0 = (np.arctan2(a0[1], a0[0]), np.arctan2(*(b0 - a0)[::-1]), np.arctan2(*(b0 - cc)[::-1]))
     assert np.linalg.norm(b0 - cc) == pytest.approx(lengths[2], abs=1e-12)  # assembly kept the rocker's length
     ts = np.asarray(np.linspace(0.0, 2.0, 201))
-    a_ref, b_ref, phi_ref = _body_coordinate_four_bar(lengths, (1.0, 2.0, 1.5), phi0, ts)
+    a_ref, b_ref, phi_ref, pin_b = _body_coordinate_four_bar(lengths, (1.0, 2.0, 1.5), phi0, ts)
     q = np.asarray(sol.q)
     assert np.max(np.abs(q[:, ia][:, :2] - a_ref)) <= FOUR_BAR_TOL
     assert np.max(np.abs(q[:, ib][:, :2] - b_ref)) <= FOUR_BAR_TOL
@@ -134,6 +145,11 @@ def test_readme_four_bar_against_body_coordinates(readme):
     # body_angles: rotation from the built orientation; built crank along +y (pi/2), coupler and rocker as drawn
     built = np.array([np.pi / 2, np.arctan2(0.5, 1.866), np.arctan2(1.4999, 1.8661 - 2.2)])
     np.testing.assert_allclose(angles, np.unwrap(phi_ref - built, axis=0), atol=ANGLE_TOL)
+    # the cut joint's reaction (rocker on coupler at B) against the body-coordinate pin multipliers
+    for k in (0, 50, 137, 200):
+        f = cut_joint_forces(mech, ts[k], sol.q[k], sol.qd[k])["cut joint B=B'"]
+        assert float(f[2]) == 0.0
+        np.testing.assert_allclose(np.asarray(f[:2]), pin_b[k], atol=FORCE_TOL * np.max(np.abs(pin_b)))
 
 
 def _slot():
