@@ -74,6 +74,7 @@ class MechanismBuilder:
         self._points: dict[str, tuple[Optional[str], np.ndarray]] = {}
         self._springs: list[tuple] = []
         self._tyres: list[tuple] = []
+        self._rotational: list[tuple] = []
         self._applied: list[tuple] = []
 
     def _vec(self, xyz, what: str) -> np.ndarray:
@@ -149,6 +150,26 @@ class MechanismBuilder:
             raise ModelError(f"planar body '{name}': polar moment must be finite and non-negative, got {moment!r}")
         inertia = RigidInertia(mass, c, np.diag([moment / 2, moment / 2, moment]), name=name)
         return self.body(name, inertia, primaries, on_negative=on_negative)
+
+    def rotational_spring_damper(self, name: str, body_a: Optional[str], body_b: str, stiffness: float,
+                                 damping: float, free_angle: float = 0.0) -> None:
+        """A torsional spring-damper between two bodies of a planar mechanism (``body_a = None``: the ground): the
+        torque on ``body_b`` is ``-(stiffness (theta - free_angle) + damping theta')`` about z, its opposite on
+        ``body_a``, with ``theta`` the rotation of ``b`` relative to ``a`` since the assembly (counter-clockwise
+        positive; valid for ``|theta - free_angle| < pi``). Stiffness in N m/rad, damping in N m s/rad."""
+        if not self.planar:
+            raise ModelError(f"rotational spring '{name}': available in planar mechanisms "
+                             "(MechanismBuilder(planar=True))")
+        for label, v in (("stiffness", stiffness), ("damping", damping)):
+            if not np.isfinite(v) or v < 0:
+                raise ModelError(f"rotational spring '{name}': {label} must be finite and non-negative, got {v!r}")
+        if not np.isfinite(free_angle):
+            raise ModelError(f"rotational spring '{name}': free angle must be finite, got {free_angle!r}")
+        if name in (r[0] for r in self._rotational):
+            raise ModelError(f"rotational spring '{name}' is defined twice")
+        if body_a == body_b:
+            raise ModelError(f"rotational spring '{name}': connects body '{body_b}' to itself")
+        self._rotational.append((name, body_a, body_b, float(stiffness), float(damping), float(free_angle)))
 
     def link(self, a: str, b: str, *, name: Optional[str] = None, length: Optional[float] = None) -> None:
         """A massless rigid link (distance constraint) between particles or points ``a`` and ``b``; its length is
@@ -558,6 +579,17 @@ class _Build:
                 if target not in self.body_names or len(self.body_particles[self.body_names.index(target)]) == 2:
                     raise ModelError(f"torque '{name}': '{target}' is not a spatial or planar body")
                 applied.append(AppliedSpec(name=name, kind=kind, target=self.body_names.index(target), fn=fn))
+        rot = []
+        for name, a, b, k, c, th0 in mb._rotational:
+            idx = []
+            for body in (a, b):
+                if body is None:
+                    idx.append(-1)
+                elif body not in self.body_names:
+                    raise ModelError(f"rotational spring '{name}': unknown body '{body}'")
+                else:
+                    idx.append(self.body_names.index(body))
+            rot.append((name, tuple(idx), k, c, th0))
         in_body = set(self.member)
         topo = Topology(
             particle_names=tuple(self.names), free=free, ground=ground, body_names=tuple(self.body_names),
@@ -571,7 +603,8 @@ class _Build:
             spring_names=tuple(s[0] for s in springs), spring_points=tuple(s[1] for s in springs),
             tyre_names=tuple(t[0] for t in tyres), tyre_points=tuple(t[1] for t in tyres),
             tyre_normals=tuple(t[2] for t in tyres),
-            saddle_point=any(i not in in_body for i in free), planar=mb.planar)
+            saddle_point=any(i not in in_body for i in free), planar=mb.planar,
+            rotational_names=tuple(r[0] for r in rot), rotational_bodies=tuple(r[1] for r in rot))
         if not topo.saddle_point and free:
             ev = np.linalg.eigvalsh(_np_mass_matrix(self, topo))
             if ev[0] <= 1e-12 * max(ev[-1], 1e-300):  # singular particle mass matrix: solve the full KKT system
@@ -592,7 +625,9 @@ class _Build:
             spring_free_length=f([s[4] for s in springs]).reshape(-1),
             tyre_stiffness=f([t[3] for t in tyres]).reshape(-1), tyre_damping=f([t[4] for t in tyres]).reshape(-1),
             tyre_radius=f([t[5] for t in tyres]).reshape(-1), tyre_ground=f([t[6] for t in tyres]).reshape(-1),
-            gravity=f(mb.gravity), applied=tuple(applied), topo=topo)
+            gravity=f(mb.gravity), rotational_stiffness=f([r[2] for r in rot]).reshape(-1),
+            rotational_damping=f([r[3] for r in rot]).reshape(-1),
+            rotational_free_angle=f([r[4] for r in rot]).reshape(-1), applied=tuple(applied), topo=topo)
 
 
 def _np_point_weights(bd: _Build, topo: Topology) -> np.ndarray:

@@ -48,7 +48,7 @@ class ChainPlan(eqx.Module):
 def chain_plan(mech: Mechanism) -> ChainPlan:
     """Recognise a uniform serial chain in ``mech`` (bodies in chain order) or raise :class:`ModelError`."""
     topo = mech.topo
-    if len(topo.linear) or topo.spring_names or topo.tyre_names or mech.applied or \
+    if len(topo.linear) or topo.spring_names or topo.tyre_names or topo.rotational_names or mech.applied or \
             len(topo.point_names) != topo.n_particles:
         raise ModelError("recursive chain solve: only bodies, shared particles and gravity are supported")
     if topo.least_squares:

@@ -18,7 +18,7 @@ from ..spatial import frame_from_points, unskew
 from .model import Mechanism
 
 __all__ = ["generalized_forces", "point_forces", "generalized_point_forces", "torque_forces", "potential_energy",
-           "spring_lengths", "body_angular_velocity"]
+           "spring_lengths", "body_angular_velocity", "rotational_angles"]
 
 
 def _pts(mech: Mechanism, x):
@@ -80,12 +80,48 @@ def generalized_point_forces(wk: Float[Array, "K F"], f_pts: Float[Array, "K 3"]
     return (wk.T @ f_pts).reshape(-1)
 
 
+def rotational_angles(mech: Mechanism, x) -> Float[Array, " R"]:
+    """Relative rotation about z of every rotational spring's body ``b`` from its ``a`` (the ground: fixed) since
+    the assembly, wrapped to ``(-pi, pi]``: from the directions between each body's first two primaries."""
+    topo = mech.topo
+    r = mech.all_positions(x)
+    ab = np.asarray(topo.rotational_bodies, dtype=int).reshape(-1, 2)
+
+    def direction(bodies, world: bool):
+        out = []
+        for b in bodies:
+            if b < 0:
+                out.append(jnp.array([1.0, 0.0], dtype=x.dtype))
+                continue
+            i, j = topo.body_particles[b][:2]
+            d = (r[j] - r[i]) if world else (mech.body_primaries[b, 1] - mech.body_primaries[b, 0])
+            out.append(d[:2])
+        return jnp.stack(out)
+
+    def angle(u, v):  # rotation taking u to v
+        return jnp.arctan2(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0], jnp.sum(u * v, axis=1))
+
+    th_a = angle(direction(ab[:, 0], False), direction(ab[:, 0], True))
+    th_b = angle(direction(ab[:, 1], False), direction(ab[:, 1], True))
+    d = th_b - th_a
+    return jnp.arctan2(jnp.sin(d), jnp.cos(d))
+
+
+def _rotational_forces(mech: Mechanism, x, xd):
+    """``-(k (theta - theta0) + c theta') dtheta/dx``: one jvp for the rates and one vjp for the forces."""
+    th, th_dot = jax.jvp(lambda y: rotational_angles(mech, y), (x,), (xd,))
+    tau = mech.rotational_stiffness * (th - mech.rotational_free_angle) + mech.rotational_damping * th_dot
+    _, pull = jax.vjp(lambda y: rotational_angles(mech, y), x)
+    return -pull(tau)[0]
+
+
 def torque_forces(mech: Mechanism, t, x, xd):
-    """Generalised forces ``(3F,)`` of the applied torques (virtual power ``tau . omega``); ``None`` if none."""
+    """Generalised forces ``(3F,)`` of the applied torques (virtual power ``tau . omega``) and the rotational
+    spring-dampers; ``None`` if none."""
     torques = [ap for ap in mech.applied if ap.kind == "torque"]
-    if not torques:
+    if not torques and not mech.topo.rotational_names:
         return None
-    q = jnp.zeros_like(x)
+    q = jnp.zeros_like(x) if not mech.topo.rotational_names else _rotational_forces(mech, x, xd)
     for ap in torques:
         _, pull = jax.vjp(lambda v, b=ap.target: body_angular_velocity(mech, b, x, v), xd)
         q = q + pull(ap.fn(t, x, xd))[0]
@@ -126,4 +162,7 @@ def potential_energy(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, ""
         k = np.asarray(topo.tyre_points, dtype=int)
         d = jnp.sum(p[k] * jnp.asarray(topo.tyre_normals), axis=1) - mech.tyre_ground - mech.tyre_radius
         u = u + jnp.sum(jnp.where(d < 0.0, 0.5 * mech.tyre_stiffness * d**2, 0.0))
+    if topo.rotational_names:
+        th = rotational_angles(mech, x) - mech.rotational_free_angle
+        u = u + jnp.sum(0.5 * mech.rotational_stiffness * th**2)
     return u

@@ -86,9 +86,11 @@ def parameter_groups(mech: Mechanism) -> list:
               ([f"ground particle '{topo.particle_names[i]}' position" for i in topo.ground], mech.ground_xyz),
               (list(topo.dot.labels), mech.dot_kappa), ("gravity", mech.gravity)]
     for prefix, names, fields in (("spring", topo.spring_names, ("stiffness", "damping", "free_length")),
-                                  ("tyre", topo.tyre_names, ("stiffness", "damping", "radius", "ground"))):
+                                  ("tyre", topo.tyre_names, ("stiffness", "damping", "radius", "ground")),
+                                  ("rotational spring", topo.rotational_names, ("stiffness", "damping", "free_angle"))):
         for f in fields:
-            groups.append(([f"{prefix} '{n}' {f.replace('_', ' ')}" for n in names], getattr(mech, f"{prefix}_{f}")))
+            groups.append(([f"{prefix} '{n}' {f.replace('_', ' ')}" for n in names],
+                           getattr(mech, f"{prefix.split()[0]}_{f}")))
     for ap in mech.applied:
         groups += [(f"applied '{ap.name}' {lab}", leaf) for lab, leaf in _ode.leaf_groups(ap.fn)]
     return [(lab, arr) for lab, arr in groups if arr.size]

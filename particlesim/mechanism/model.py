@@ -101,6 +101,8 @@ class Topology:
     saddle_point: bool = False  # the mass matrix is singular (a free particle in no body): solve the full KKT
     least_squares: bool = False  # minimum-norm (damped, refined) multipliers: redundant rows, singular positions
     planar: bool = False  # built as a planar mechanism (x-y plane, every free particle held in it)
+    rotational_names: tuple[str, ...] = ()  # rotational spring-dampers (planar mechanisms)
+    rotational_bodies: tuple[tuple[int, int], ...] = ()  # (body a, body b); -1: the ground
 
     def _key(self) -> tuple:
         return tuple(getattr(self, f.name) for f in dataclasses.fields(self))
@@ -176,6 +178,9 @@ class Mechanism(eqx.Module):
     tyre_radius: Float[Array, " T"]
     tyre_ground: Float[Array, " T"]
     gravity: Float[Array, "3"]
+    rotational_stiffness: Float[Array, " R"]
+    rotational_damping: Float[Array, " R"]
+    rotational_free_angle: Float[Array, " R"]
     applied: tuple  # AppliedSpec
     # --- static topology ---
     topo: Topology = eqx.field(static=True)
@@ -277,12 +282,13 @@ class Mechanism(eqx.Module):
 
     # ---- parameters by name ----
     def with_params(self, *, body: dict | None = None, spring: dict | None = None, tyre: dict | None = None,
-                    gravity=None) -> "Mechanism":
+                    rotational: dict | None = None, gravity=None) -> "Mechanism":
         """A copy with parameters replaced by name (values may be traced: one compiled rollout serves all).
 
         ``body={"wheel": {"mass": 20.0, "com": ..., "inertia": ...}}``, ``spring={"suspension": {"stiffness": ...,
         "damping": ..., "free_length": ...}}``, ``tyre={"tyre": {"stiffness": ..., "damping": ..., "radius": ...,
-        "ground": ...}}``, ``gravity=(0, 0, -9.81)``. Unknown names or fields raise ``KeyError``. Values are not
+        "ground": ...}}``, ``rotational={"torsion bar": {"stiffness": ..., "damping": ..., "free_angle": ...}}``,
+        ``gravity=(0, 0, -9.81)``. Unknown names or fields raise ``KeyError``. Values are not
         checked here; the simulation refuses non-finite ones."""
         new = {}
 
@@ -292,7 +298,8 @@ class Mechanism(eqx.Module):
 
         groups = ((body, "body", self.topo.body_names, ("mass", "com", "inertia")),
                   (spring, "spring", self.topo.spring_names, ("stiffness", "damping", "free_length")),
-                  (tyre, "tyre", self.topo.tyre_names, ("stiffness", "damping", "radius", "ground")))
+                  (tyre, "tyre", self.topo.tyre_names, ("stiffness", "damping", "radius", "ground")),
+                  (rotational, "rotational", self.topo.rotational_names, ("stiffness", "damping", "free_angle")))
         for values, prefix, names, fields in groups:
             for name, entries in (values or {}).items():
                 if name not in names:
@@ -310,7 +317,7 @@ class Mechanism(eqx.Module):
         keys = [getattr(k, "name", getattr(k, "idx", getattr(k, "key", None))) for k in path]
         head = keys[0]
         for prefix, names in (("body", self.topo.body_names), ("spring", self.topo.spring_names),
-                              ("tyre", self.topo.tyre_names)):
+                              ("tyre", self.topo.tyre_names), ("rotational", self.topo.rotational_names)):
             if isinstance(head, str) and head.startswith(prefix + "_"):
                 field = head.removeprefix(prefix + "_")
                 if len(names) == 1:
