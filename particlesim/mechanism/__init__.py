@@ -9,7 +9,8 @@ from .dynamics import Prepared, prepare, mass_properties, accelerations, acceler
 from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
 from .integrate import project, simulate_mechanism
 from .model import Mechanism
-from .outputs import body_angles, body_com_positions, body_poses, body_velocities, cut_joint_forces
+from .outputs import (body_angles, body_com_positions, body_poses, body_reactions, body_velocities, cut_joint_forces,
+                      joint_reaction)
 
 __all__ = [
     "Mechanism",
@@ -44,4 +45,6 @@ __all__ = [
     "body_velocities",
     "body_angles",
     "cut_joint_forces",
+    "body_reactions",
+    "joint_reaction",
 ]

@@ -19,7 +19,8 @@ from ..errors import ModelError
 from ..spatial import unskew
 from .model import Mechanism
 
-__all__ = ["body_poses", "body_com_positions", "body_velocities", "body_angles", "cut_joint_forces"]
+__all__ = ["body_poses", "body_com_positions", "body_velocities", "body_angles", "cut_joint_forces",
+           "body_reactions", "joint_reaction"]
 
 
 def _check_state(mech: Mechanism, v, what: str) -> None:
@@ -141,3 +142,91 @@ def cut_joint_forces(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array
         f = out.get(name, jnp.zeros(3, dtype=x.dtype))
         out[name] = f - lam_lin[r] * jnp.asarray(axis, dtype=x.dtype)
     return out
+
+
+def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"]) -> Float[Array, "B 4 3"]:
+    """The force ``(3,)`` every body receives at each of its primaries (``mech.topo.body_particles`` order, padded
+    with zeros to 4) from outside itself: its joints (the other bodies sharing the particle, the ground, cut joints,
+    links, lines and prismatic joints acting on its points) and loads applied directly at a shared particle.
+
+    From each body's own equations, ``R_b = L_b xdd_b - Q_b + J_b^T lam_b``: its mass block times the particle
+    accelerations, minus its gravity and the loads on its own points and its torques, plus the forces of its own
+    rigid-distance rows (a row shared by two bodies, the axis of a revolute joint, split evenly: the split moves
+    equal and opposite forces along the axis between its two particles and leaves every joint's net force and
+    moment unchanged). :func:`joint_reaction` sums them into a joint's force and moment. Mechanisms with
+    rotational spring-dampers are refused (their torques are not yet split by body)."""
+    from ..particles import primary_mass_matrix
+    from .constraints import point_weights, points
+    from .dynamics import accelerations_and_multipliers
+    from .forces import body_angular_velocity, point_forces
+
+    topo = mech.topo
+    if topo.rotational_names:
+        raise ModelError("body_reactions: mechanisms with rotational spring-dampers are not supported yet")
+    _check_state(mech, x, "x")
+    _check_state(mech, xd, "xd")
+    xdd, lam = accelerations_and_multipliers(mech, t, x, xd)
+    n_p = topo.n_particles
+    free = np.asarray(topo.free, dtype=int)
+    acc = jnp.zeros((n_p, 3), x.dtype).at[free].set(xdd.reshape(-1, 3))
+    vel = jnp.zeros((n_p, 3), x.dtype).at[free].set(xd.reshape(-1, 3))
+    pos = mech.all_positions(x)
+    # forces of the rigid-distance rows of each body, per particle, with their share
+    owners: dict[int, list[int]] = {}
+    prim_sets = [set(p) for p in topo.body_particles]
+    rows = topo.dot
+    for r in range(len(rows)):
+        a, b, c, d = rows.a[r], rows.b[r], rows.c[r], rows.d[r]
+        if a == c and b == d and max(a, b) < n_p:
+            owners[r] = [k for k, ps in enumerate(prim_sets) if a in ps and b in ps]
+    w = point_weights(mech)
+    pts = points(topo, w, pos)
+    f_pts = point_forces(mech, t, x, xd, pts, points(topo, w, vel))
+    out = jnp.zeros((len(topo.body_names), 4, 3), x.dtype)
+    for bi, prim in enumerate(topo.body_particles):
+        k = len(prim)
+        idx = np.asarray(prim, dtype=int)
+        lb = primary_mass_matrix(mech.body_mass[bi], mech.body_com[bi], mech.body_inertia[bi],
+                                 mech.body_primaries[bi, :k])
+        r_b = lb @ acc[idx] - jnp.sum(lb, axis=1)[:, None] * mech.gravity[None, :]
+        if f_pts is not None:  # loads on the body's own points (not at particles), by their weights
+            mine = [q for q, owner in enumerate(topo.point_body) if owner == bi]
+            if mine:
+                r_b = r_b - jnp.einsum("qt,qj->tj", w[np.asarray(mine)][:, :k], f_pts[np.asarray(mine)])
+        for ap in mech.applied:
+            if ap.kind == "torque" and ap.target == bi:
+                def omega(v_all, ap=ap):
+                    return body_angular_velocity(mech, bi, x, v_all)
+                # the torque's generalised force on this body's particles (free ones; ground ones take none)
+                _, pull = jax.vjp(omega, xd)
+                q = pull(ap.fn(t, x, xd))[0].reshape(-1, 3)
+                col = topo.free_column()[idx]
+                r_b = r_b - jnp.where(jnp.asarray(col >= 0)[:, None], q[np.maximum(col, 0)], 0.0)
+        for r, bodies in owners.items():
+            if bi not in bodies:
+                continue
+            a, b = rows.a[r], rows.b[r]
+            g = 2.0 * rows.scale[r] * (pos[a] - pos[b]) * lam[r] / len(bodies)
+            r_b = r_b.at[list(prim).index(a)].add(g).at[list(prim).index(b)].add(-g)
+        out = out.at[bi, :k].set(r_b)
+    return out
+
+
+def joint_reaction(mech: Mechanism, t, x, xd, body: str, particles) -> tuple[Array, Array]:
+    """Net force and moment ``((3,), (3,))`` that ``body`` receives through the listed primaries of it (the
+    particles of one joint: one for a spherical joint, the two axis particles of a revolute joint), the moment
+    about the first of them; from :func:`body_reactions`."""
+    b = mech.body_index(body)
+    prim = mech.topo.body_particles[b]
+    names = [particles] if isinstance(particles, str) else list(particles)
+    slots = []
+    for n in names:
+        i = mech.index(n)
+        if i not in prim:
+            raise ModelError(f"joint_reaction: particle '{n}' is not a primary of body '{body}'")
+        slots.append(prim.index(i))
+    react = body_reactions(mech, t, x, xd)[b]
+    pos = mech.all_positions(x)[np.asarray(prim, dtype=int)]
+    f = jnp.sum(react[np.asarray(slots)], axis=0)
+    m = jnp.sum(jnp.cross(pos[np.asarray(slots)] - pos[slots[0]][None], react[np.asarray(slots)]), axis=0)
+    return f, m

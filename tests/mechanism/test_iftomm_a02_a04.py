@@ -123,3 +123,35 @@ def test_a04_against_the_mujoco_twin(a04):
         assert errs[-1] <= tol, (dt, errs[-1])
         assert loop <= 1e-8
     assert errs[0] / errs[1] >= 3.0  # second-order convergence towards ours
+
+
+def test_a04_joint_reactions_balance(a04):
+    """Newton's third law at every shared joint particle, and the ground reactions against the rate of the total
+    momentum minus the weight (global force balance), at three states of the run."""
+    from particlesim.mechanism import accelerations, body_com_positions, body_reactions, joint_reaction
+
+    mech, ts, sol = a04
+    topo = mech.topo
+    masses = np.asarray(mech.body_mass)
+    for k in (0, 3, 7):
+        t, x, xd = ts[k], sol.q[k], sol.qd[k]
+        react = np.asarray(body_reactions(mech, t, x, xd))
+        scale = np.max(np.abs(react))
+        total: dict[int, np.ndarray] = {}
+        for b, prim in enumerate(topo.body_particles):
+            for s, i in enumerate(prim):
+                total[i] = total.get(i, 0.0) + react[b, s]
+        ground = set(topo.ground)
+        for i, f in total.items():
+            if i not in ground:
+                assert np.max(np.abs(f)) <= 1e-9 * scale, topo.particle_names[i]
+        xdd = accelerations(mech, t, x, xd)
+        _, a_com = jax.jvp(lambda y: body_com_positions(mech, y), (x,), (xdd,))
+        rate = np.sum(masses[:, None] * np.asarray(a_com), axis=0) - masses.sum() * np.asarray(mech.gravity)
+        ground_force = sum(f for i, f in total.items() if i in ground)
+        np.testing.assert_allclose(ground_force, rate, atol=1e-9 * scale)
+        f1, m1 = joint_reaction(mech, t, x, xd, "rod1", ["P1", "P1a"])
+        np.testing.assert_allclose(np.asarray(f1), react[0, 0] + react[0, 1], atol=1e-12 * scale)
+        p = np.asarray(mech.all_positions(x))
+        i1, i1a = mech.index("P1"), mech.index("P1a")
+        np.testing.assert_allclose(np.asarray(m1), np.cross(p[i1a] - p[i1], react[0, 1]), atol=1e-12 * scale)

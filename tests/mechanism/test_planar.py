@@ -13,8 +13,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from particlesim.errors import ModelError
-from particlesim.mechanism import (MechanismBuilder, body_angles, body_poses, constraints, cut_joint_forces,
-                                   simulate_mechanism)
+from particlesim.mechanism import (MechanismBuilder, body_angles, body_poses, body_reactions, constraints,
+                                   cut_joint_forces, joint_reaction, simulate_mechanism)
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 #: Joint positions of the four-bar, ours against the body-coordinate solution [m] (ours at the README's default
@@ -102,15 +102,15 @@ def _body_coordinate_four_bar(lengths, masses, phi0, ts, k=80.0, c=0.5, l0=2.0, 
     q = r.y[:9].T
     a = q[:, 0:2] + l1 / 2 * np.stack([np.cos(q[:, 2]), np.sin(q[:, 2])], axis=1)
     b = q[:, 3:5] + l2 / 2 * np.stack([np.cos(q[:, 5]), np.sin(q[:, 5])], axis=1)
-    # the pin B multipliers (rows 4, 5): the force on the coupler at B from the rocker is -lam
-    pin_b = []
+    # the pin multipliers (O, A, B, C: rows 0-1, 2-3, 4-5, 6-7); pin (i, j) pushes body i with -lam, j with +lam
+    lams = []
     for y in r.y.T:
         qq, qd = y[:9], y[9:]
         j, gam, res = parts(qq, qd)
         gam = gam - 2 * 50.0 * (j @ qd) - 2500.0 * res
         kkt = np.block([[np.diag(m), j.T], [j, np.zeros((8, 8))]])
-        pin_b.append(-np.linalg.solve(kkt, np.concatenate([forces(qq, qd), gam]))[9 + 4:9 + 6])
-    return a, b, q[:, 2::3], np.asarray(pin_b)
+        lams.append(np.linalg.solve(kkt, np.concatenate([forces(qq, qd), gam]))[9:])
+    return a, b, q[:, 2::3], np.asarray(lams)
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +137,8 @@ def test_readme_four_bar_against_body_coordinates(readme):
     phi0 = (np.arctan2(a0[1], a0[0]), np.arctan2(*(b0 - a0)[::-1]), np.arctan2(*(b0 - cc)[::-1]))
     assert np.linalg.norm(b0 - cc) == pytest.approx(lengths[2], abs=1e-12)  # assembly kept the rocker's length
     ts = np.asarray(np.linspace(0.0, 2.0, 201))
-    a_ref, b_ref, phi_ref, pin_b = _body_coordinate_four_bar(lengths, (1.0, 2.0, 1.5), phi0, ts)
+    a_ref, b_ref, phi_ref, pins = _body_coordinate_four_bar(lengths, (1.0, 2.0, 1.5), phi0, ts)
+    pin_b = -pins[:, 4:6]
     q = np.asarray(sol.q)
     assert np.max(np.abs(q[:, ia][:, :2] - a_ref)) <= FOUR_BAR_TOL
     assert np.max(np.abs(q[:, ib][:, :2] - b_ref)) <= FOUR_BAR_TOL
@@ -150,6 +151,26 @@ def test_readme_four_bar_against_body_coordinates(readme):
         f = cut_joint_forces(mech, ts[k], sol.q[k], sol.qd[k])["cut joint B=B'"]
         assert float(f[2]) == 0.0
         np.testing.assert_allclose(np.asarray(f[:2]), pin_b[k], atol=FORCE_TOL * np.max(np.abs(pin_b)))
+    # every joint's reaction from body_reactions / joint_reaction against the pins
+    scale = FORCE_TOL * np.max(np.abs(pins))
+    for k in (0, 50, 137, 200):
+        t, x, xd = ts[k], sol.q[k], sol.qd[k]
+        lam = pins[k].reshape(4, 2)
+        react = np.asarray(body_reactions(mech, t, x, xd))[:, :2, :2]  # (crank, coupler, rocker) x (first, second)
+        p = np.asarray(x).reshape(-1, 3)
+        a, v_a = p[mech.free.index(mech.index("A"))][:2], np.asarray(xd).reshape(-1, 3)[mech.free.index(mech.index("A"))][:2]
+        d = a - np.array([2.2, 0.0])
+        u = d / np.linalg.norm(d)
+        spring = -(80.0 * (np.linalg.norm(d) - 2.0) + 0.5 * (v_a @ u)) * u  # the load applied at particle A
+        np.testing.assert_allclose(react[0, 0], -lam[0], atol=scale)  # crank at O, from the ground
+        np.testing.assert_allclose(react[0, 1], -lam[1] + spring, atol=scale)  # crank at A: coupler + spring
+        np.testing.assert_allclose(react[1, 0], lam[1], atol=scale)  # coupler at A, from the crank
+        np.testing.assert_allclose(react[1, 1], -lam[2], atol=scale)  # coupler at B, from the rocker
+        np.testing.assert_allclose(react[2, 1], lam[2], atol=scale)  # rocker at B', from the coupler
+        np.testing.assert_allclose(react[2, 0], -lam[3], atol=scale)  # rocker at C, from the ground
+        f, m = joint_reaction(mech, t, x, xd, "rocker", ["C"])
+        np.testing.assert_allclose(np.asarray(f[:2]), -lam[3], atol=scale)
+        assert float(jnp.max(jnp.abs(m))) == 0.0
 
 
 def _slot():
