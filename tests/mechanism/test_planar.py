@@ -241,3 +241,10 @@ def test_body_angles_refuses_a_spatial_mechanism(four_bar):
     mech, x0 = four_bar().build()
     with pytest.raises(ModelError, match="body_angles: the mechanism is not planar"):
         body_angles(mech, jnp.asarray(x0))
+
+
+def test_joint_reaction_refuses_a_particle_of_another_body(four_bar):
+    mech, x0 = four_bar().build()
+    x0 = jnp.asarray(x0)
+    with pytest.raises(ModelError, match="joint_reaction: particle 'B' is not a primary of body 'crank'"):
+        joint_reaction(mech, 0.0, x0, jnp.zeros_like(x0), "crank", ["B"])

@@ -113,3 +113,11 @@ def test_bad_rotational_springs():
     spatial = MechanismBuilder()
     with pytest.raises(ModelError, match="rotational spring 'u': available in planar mechanisms"):
         spatial.rotational_spring_damper("u", None, "bar", 1.0, 0.0)
+
+
+def test_body_reactions_refuse_rotational_springs():
+    from particlesim.mechanism import body_reactions
+
+    mech, x0 = _one()
+    with pytest.raises(ModelError, match="body_reactions: mechanisms with rotational spring-dampers"):
+        body_reactions(mech, 0.0, jnp.asarray(x0), jnp.zeros(len(x0)))
