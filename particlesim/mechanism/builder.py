@@ -196,6 +196,23 @@ class MechanismBuilder:
             raise ModelError(f"prismatic joint {name}: needs three particles on each side")
         self._joints.append(("prismatic", (*axis_a, *axis_b), name or f"prismatic {axis_a[0]}-{axis_b[0]}", None))
 
+    def universal(self, center: str, arm_a: str, arm_b: str, *, name: Optional[str] = None) -> None:
+        """Universal (Cardan) joint: ``center`` is a particle of both bodies (their spherical joint) and ``arm_a``,
+        ``arm_b`` are particles or points of body A and body B marking the cross's two arms from the centre, which
+        must be perpendicular at assembly; they stay perpendicular (one row), which leaves two relative rotations."""
+        self._joints.append(("universal", (center, arm_a, arm_b), name or f"universal {center}", None))
+
+    def cylindrical(self, axis_a: Sequence[str], axis_b: Sequence[str], *, name: Optional[str] = None) -> None:
+        """Cylindrical joint: ``axis_a = (a0, a1, a2)`` particles/points of body A (or ground), a0 and a1 on the
+        axis and a2 off it; ``axis_b = (b0, b1)`` of body B on the axis. B slides along and turns about A's axis
+        (four rows: b0 and b1 kept on the line). Spatial mechanisms only (in a plane it would be a prismatic joint)."""
+        if len(axis_a) != 3 or len(axis_b) != 2:
+            raise ModelError(f"cylindrical joint {name}: needs three particles on the guide and two on the slider")
+        if self.planar:
+            raise ModelError(f"cylindrical joint {name}: not available in a planar mechanism (use prismatic)")
+        self._joints.append(("cylindrical", (*axis_a, *axis_b), name or f"cylindrical {axis_a[0]}-{axis_b[0]}",
+                             None))
+
     # ---- force elements ----
     def point(self, name: str, body: Optional[str], xyz) -> str:
         """A named point fixed to ``body`` at global ``xyz`` (assembly). A point of a planar body must lie in the
@@ -426,6 +443,18 @@ class _Build:
                 n1 = _unit(w)
                 host = self.host(pnames[1:], label)
                 dirs = (n1, np.cross(u / ell, n1))
+            elif kind == "cylindrical":
+                a0, a1, a2 = world[:3]
+                u = a1 - a0
+                ell = float(np.linalg.norm(u))
+                w = (a2 - a0) - ((a2 - a0) @ u) / (u @ u) * u if ell > 0 else u
+                if ell == 0 or np.linalg.norm(w) <= 1e-9 * ell:
+                    raise ModelError(f"{label}: point '{pnames[2]}' lies on the axis '{pnames[0]}'-'{pnames[1]}'")
+                if np.linalg.norm(world[4] - world[3]) <= 1e-9 * ell:
+                    raise ModelError(f"{label}: the slider's axis points '{pnames[3]}' and '{pnames[4]}' coincide")
+                n1 = _unit(w)
+                host = self.host(pnames[:3], label)
+                dirs = (n1, np.cross(u / ell, n1))
             elif kind == "prismatic":
                 a0, a1, a2, b0, _, b2 = world
                 u = a1 - a0
@@ -444,7 +473,7 @@ class _Build:
                 dirs = (n1, np.cross(u, n1), _unit(np.cross(u, wb)))
             if self.mb.planar:
                 dirs = dirs[:1]  # the in-plane normal; the out-of-plane rows are left out (see joints)
-            origin = world[1] if kind == "on_line" else (world[0] if kind == "prismatic" else None)
+            origin = world[1] if kind == "on_line" else (world[0] if kind in ("prismatic", "cylindrical") else None)
             names = []
             if host == -1:  # a ground-side direction: a hidden ground particle
                 for j, d in enumerate(dirs):
@@ -529,6 +558,21 @@ class _Build:
                 for axis, c in list(zip(_AXES, "xyz"))[:2 if planar else 3]:
                     self.lin.append((ks[0], ks[1], axis, f"{label} ({c})"))
                 continue
+            if kind == "universal":
+                ha, hb = self.host(pnames[:2], label), self.host(pnames[::2], label)
+                if ha == hb:
+                    raise ModelError(f"{label}: both arms '{pnames[1]}' and '{pnames[2]}' belong to one body (or "
+                                     f"the ground) with the centre '{pnames[0]}': a universal joint joins two bodies "
+                                     "that share the centre")
+                arm_a, arm_b = world[1] - world[0], world[2] - world[0]
+                la, lb = float(np.linalg.norm(arm_a)), float(np.linalg.norm(arm_b))
+                if la == 0 or lb == 0:
+                    raise ModelError(f"{label}: an arm has zero length (arm point at the centre)")
+                if abs(arm_a @ arm_b) > 1e-9 * la * lb:
+                    raise ModelError(f"{label}: the arms are not perpendicular at assembly (cos = "
+                                     f"{arm_a @ arm_b / (la * lb):.3g})")
+                self.dot.append((ks[1], ks[0], ks[2], ks[0], 1.0 / (la * lb), 0.0, f"{label} (cross)"))
+                continue
             if host == -1:
                 n = [self.point_index[nm] for nm in ground_names]
             else:
@@ -540,6 +584,11 @@ class _Build:
             if kind == "on_line":
                 for j, c in enumerate(("n1", "n2")[:1 if planar else 2]):
                     self.dot.append((n[j], ks[1], ks[0], ks[1], 1.0 / ell, 0.0, f"{label} ({c})"))
+            elif kind == "cylindrical":
+                a0, b0, b1 = ks[0], ks[3], ks[4]
+                for p, tag in ((b0, "axis 1"), (b1, "axis 2")):
+                    for j, c in enumerate("ab"):
+                        self.dot.append((n[j], a0, p, a0, 1.0 / ell, 0.0, f"{label} ({tag}{c})"))
             else:
                 a0, b0, b1, b2 = ks[0], ks[3], ks[4], ks[5]
                 for p, tag in ((b0, "axis 1"), (b1, "axis 2")):
