@@ -326,3 +326,25 @@ def markdown(results: dict, *, all_rows: bool = False) -> str:
                   "|---|---|---:|---:|---:|---:|---:|"] + [_fmt(r, unit) for r in results["rows"]]
     lines += [""] + [f"{n}" for n in results["notes"]] + [""]
     return "\n".join(lines)
+
+
+def finish_without_mjx(results: dict, started: float) -> dict:
+    """For scenes without an MJX row: add the MuJoCo C goal sentence and the elapsed time."""
+    results["notes"] += [n for n in headline_notes(results) if "MJX" not in n]
+    results["elapsed_s"] = time.perf_counter() - started
+    return results
+
+
+def markdown_without_mjx(results: dict) -> str:
+    """All rows, the headline's MJX clause replaced by "(no MJX row)"."""
+    return markdown(results, all_rows=True).replace("; MJX: no run reached the target", " (no MJX row)")
+
+
+def main(run: Callable[[], dict], to_markdown: Callable[[dict], str]) -> dict:
+    """A benchmark module's ``main``: run, write JSON/CSV/PNG, print the table and the elapsed time."""
+    print(f"devices: {jax.devices()}")
+    results = run()
+    write(results)
+    print(to_markdown(results))
+    print(f"elapsed {results['elapsed_s']:.0f} s")
+    return results

@@ -19,7 +19,6 @@ from __future__ import annotations
 import time
 
 import particlesim  # noqa: F401  (float64)
-import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -94,22 +93,15 @@ def run() -> dict:
     res = _wp.finish(NAME, "Andrews' squeezing mechanism (IFToMM A03)", T_END, TARGET, "rel.",
                      "joint angles at 0.03 s, relative", {"what": "published reference (PSIDE, tol 1e-14)"},
                      rows, started, notes)
-    res["notes"] += [n for n in _wp.headline_notes(res) if "MJX" not in n]  # no MJX row here
-    res["elapsed_s"] = time.perf_counter() - started
-    return res
+    return _wp.finish_without_mjx(res, started)
 
 
 def markdown(results: dict) -> str:
-    return _wp.markdown(results, all_rows=True).replace("; MJX: no run reached the target", " (no MJX row)")
+    return _wp.markdown_without_mjx(results)
 
 
 def main() -> dict:
-    print(f"devices: {jax.devices()}")
-    results = run()
-    _wp.write(results)
-    print(markdown(results))
-    print(f"elapsed {results['elapsed_s']:.0f} s")
-    return results
+    return _wp.main(run, markdown)
 
 
 if __name__ == "__main__":

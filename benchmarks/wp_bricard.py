@@ -18,7 +18,6 @@ from __future__ import annotations
 import time
 
 import particlesim  # noqa: F401  (float64)
-import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -87,22 +86,15 @@ def run() -> dict:
     ]
     res = _wp.finish(NAME, "Bricard's linkage (IFToMM A04)", T_END, TARGET, "m", "P3 over 10 s",
                      {"what": "ours at Dopri8 rtol 1e-13"}, rows, started, notes, key="max_error")
-    res["notes"] += [n for n in _wp.headline_notes(res) if "MJX" not in n]
-    res["elapsed_s"] = time.perf_counter() - started
-    return res
+    return _wp.finish_without_mjx(res, started)
 
 
 def markdown(results: dict) -> str:
-    return _wp.markdown(results, all_rows=True).replace("; MJX: no run reached the target", " (no MJX row)")
+    return _wp.markdown_without_mjx(results)
 
 
 def main() -> dict:
-    print(f"devices: {jax.devices()}")
-    results = run()
-    _wp.write(results)
-    print(markdown(results))
-    print(f"elapsed {results['elapsed_s']:.0f} s")
-    return results
+    return _wp.main(run, markdown)
 
 
 if __name__ == "__main__":

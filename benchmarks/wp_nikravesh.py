@@ -218,12 +218,7 @@ def markdown(results: dict) -> str:
 
 
 def main() -> dict:
-    print(f"devices: {jax.devices()}")
-    results = run()
-    _wp.write(results)
-    print(markdown(results))
-    print(f"elapsed {results['elapsed_s']:.0f} s")
-    return results
+    return _wp.main(run, markdown)
 
 
 if __name__ == "__main__":
