@@ -191,9 +191,15 @@ class MechanismBuilder:
 
     def prismatic(self, axis_a: Sequence[str], axis_b: Sequence[str], *, name: Optional[str] = None) -> None:
         """Prismatic joint: ``axis_a = (a0, a1, a2)`` are particles/points of body A (or ground) with a0, a1 on the
-        axis and a2 off it; ``axis_b = (b0, b1, b2)`` likewise on body B. B slides along A's axis without turning."""
+        axis and a2 off it; ``axis_b = (b0, b1, b2)`` likewise on body B. B slides along A's axis without turning.
+        In a planar mechanism two points a side suffice, ``(a0, a1)`` and ``(b0, b1)``, all on the axis."""
+        if self.planar and len(axis_a) == 2 and len(axis_b) == 2:
+            self._joints.append(("prismatic2d", (*axis_a, *axis_b), name or f"prismatic {axis_a[0]}-{axis_b[0]}",
+                                 None))
+            return
         if len(axis_a) != 3 or len(axis_b) != 3:
-            raise ModelError(f"prismatic joint {name}: needs three particles on each side")
+            two = " (or two, on the axis, in a planar mechanism)" if self.planar else ""
+            raise ModelError(f"prismatic joint {name}: needs three particles on each side{two}")
         self._joints.append(("prismatic", (*axis_a, *axis_b), name or f"prismatic {axis_a[0]}-{axis_b[0]}", None))
 
     def universal(self, center: str, arm_a: str, arm_b: str, *, name: Optional[str] = None) -> None:
@@ -455,6 +461,16 @@ class _Build:
                 n1 = _unit(w)
                 host = self.host(pnames[:3], label)
                 dirs = (n1, np.cross(u / ell, n1))
+            elif kind == "prismatic2d":
+                a0, a1, b0, b1 = world
+                u = a1 - a0
+                ell = float(np.linalg.norm(u))
+                if ell == 0:
+                    raise ModelError(f"{label}: the guide's axis points '{pnames[0]}' and '{pnames[1]}' coincide")
+                if np.linalg.norm(b1 - b0) <= 1e-9 * ell:
+                    raise ModelError(f"{label}: the slider's axis points '{pnames[2]}' and '{pnames[3]}' coincide")
+                host = self.host(pnames[:2], label)
+                dirs = (_unit(np.cross((0.0, 0.0, 1.0), u)),)
             elif kind == "prismatic":
                 a0, a1, a2, b0, _, b2 = world
                 u = a1 - a0
@@ -473,7 +489,8 @@ class _Build:
                 dirs = (n1, np.cross(u, n1), _unit(np.cross(u, wb)))
             if self.mb.planar:
                 dirs = dirs[:1]  # the in-plane normal; the out-of-plane rows are left out (see joints)
-            origin = world[1] if kind == "on_line" else (world[0] if kind in ("prismatic", "cylindrical") else None)
+            origin = world[1] if kind == "on_line" else (
+                world[0] if kind in ("prismatic", "prismatic2d", "cylindrical") else None)
             names = []
             if host == -1:  # a ground-side direction: a hidden ground particle
                 for j, d in enumerate(dirs):
@@ -584,6 +601,10 @@ class _Build:
             if kind == "on_line":
                 for j, c in enumerate(("n1", "n2")[:1 if planar else 2]):
                     self.dot.append((n[j], ks[1], ks[0], ks[1], 1.0 / ell, 0.0, f"{label} ({c})"))
+            elif kind == "prismatic2d":
+                a0 = ks[0]
+                for p, tag in ((ks[2], "axis 1"), (ks[3], "axis 2")):
+                    self.dot.append((n[0], a0, p, a0, 1.0 / ell, 0.0, f"{label} ({tag})"))
             elif kind == "cylindrical":
                 a0, b0, b1 = ks[0], ks[3], ks[4]
                 for p, tag in ((b0, "axis 1"), (b1, "axis 2")):

@@ -248,3 +248,42 @@ def test_joint_reaction_refuses_a_particle_of_another_body(four_bar):
     x0 = jnp.asarray(x0)
     with pytest.raises(ModelError, match="joint_reaction: particle 'B' is not a primary of body 'crank'"):
         joint_reaction(mech, 0.0, x0, jnp.zeros_like(x0), "crank", ["B"])
+
+
+def test_two_point_planar_prismatic_is_the_checked_three_point_joint():
+    """In a plane a prismatic joint needs only the axis points; its rows equal those of the three-point form (whose
+    motion test_planar_slot_against_lagrange_equations checks), built for a slider-crank."""
+    from particlesim.mechanism import accelerations
+
+    def build(two: bool):
+        mb = MechanismBuilder(planar=True)
+        mb.ground("O", (0.0, 0.0))
+        mb.ground("G1", (1.0, 0.0))
+        mb.ground("G2", (0.5, 0.1))
+        mb.particle("A", (0.0, 0.1))
+        mb.particle("P", (0.2828, 0.0))
+        mb.particle("P1", (0.3328, 0.0))
+        mb.particle("P2", (0.3078, 0.02))
+        mb.rod("crank", "O", "A", mass=0.3)
+        mb.rod("rod", "A", "P", mass=0.4)
+        mb.planar_body("piston", 0.5, 2e-4, (0.3078, 0.005), ["P", "P1", "P2"], on_negative="ignore")
+        if two:
+            mb.prismatic(("O", "G1"), ("P", "P1"), name="guide")
+        else:
+            mb.prismatic(("O", "G1", "G2"), ("P", "P1", "P2"), name="guide")
+        mb.spring_damper("return", "P2", "G1", 200.0, 1.0, 0.65)
+        return mb.build(dof=1)
+
+    (m3, x3), (m2, x2) = build(False), build(True)
+    assert m2.n_constraints == m3.n_constraints
+    xd = jnp.zeros(len(x3)).at[m3.free_slice("A")].set(jnp.array([-1.0, 0.0, 0.0]))
+    from particlesim.mechanism import project
+
+    x, xd = project(m3, jnp.asarray(x3), xd)
+    np.testing.assert_allclose(np.asarray(accelerations(m2, 0.0, x, xd)), np.asarray(accelerations(m3, 0.0, x, xd)),
+                               rtol=0, atol=1e-12)
+    mb = MechanismBuilder(planar=True)
+    mb.ground("O", (0.0, 0.0))
+    mb.particle("P", (0.0, 0.0))
+    with pytest.raises(ModelError, match="prismatic joint g: needs three particles on each side \\(or two"):
+        mb.prismatic(("O",), ("P",), name="g")
