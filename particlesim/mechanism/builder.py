@@ -84,9 +84,9 @@ class MechanismBuilder:
             p = np.append(p, 0.0)
         n = "2 (x, y) or 3" if self.planar else "3"
         if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise ModelError(f"{what}: must be {n} finite numbers, got {np.asarray(xyz).tolist()}")
+            raise ModelError(f"{what} must be {n} finite numbers, got {np.asarray(xyz).tolist()}")
         if self.planar and p[2] != 0.0:
-            raise ModelError(f"{what}: z = {float(p[2])!r}, off the plane of a planar mechanism (z = 0)")
+            raise ModelError(f"{what} has z = {float(p[2])!r}, off the plane of a planar mechanism (z = 0)")
         return p
 
     # ---- particles ----

@@ -219,9 +219,9 @@ def test_planar_slot_against_lagrange_equations():
 
 def test_bad_planar_input():
     mb = MechanismBuilder(planar=True)
-    with pytest.raises(ModelError, match=r"particle 'P': position: z = 0.1, off the plane"):
+    with pytest.raises(ModelError, match=r"particle 'P': position has z = 0.1, off the plane"):
         mb.particle("P", (0.0, 1.0, 0.1))
-    with pytest.raises(ModelError, match=r"particle 'Q': position: must be 2 \(x, y\) or 3 finite numbers"):
+    with pytest.raises(ModelError, match=r"particle 'Q': position must be 2 \(x, y\) or 3 finite numbers"):
         mb.particle("Q", (0.0, np.nan))
     for n, p in (("a", (0, 0)), ("b", (1, 0)), ("c", (0, 1)), ("d", (1, 1))):
         mb.particle(n, p)
@@ -233,7 +233,7 @@ def test_bad_planar_input():
         mb.planar_body("plate", 1.0, 0.1, (0.3, 0.3), ["a", "b"])
     with pytest.raises(ModelError, match="rod 'r': unknown particle 'zz'"):
         mb.rod("r", "a", "zz", mass=1.0)
-    with pytest.raises(ModelError, match="gravity: must be 2 \\(x, y\\) or 3"):
+    with pytest.raises(ModelError, match="gravity must be 2 \\(x, y\\) or 3"):
         MechanismBuilder(gravity=(0, 1, 2, 3), planar=True)
 
 
