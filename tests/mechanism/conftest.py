@@ -25,7 +25,7 @@ def _four_bar(close=True, extra_link=False, offset=0.0) -> MechanismBuilder:
     return mb
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def four_bar():
     """The four-bar builder factory ``four_bar(close=True, extra_link=False, offset=0.0)``."""
     return _four_bar

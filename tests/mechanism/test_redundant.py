@@ -24,11 +24,9 @@ ROLLOUT_TOL = 1e-8
 
 
 @pytest.fixture(scope="module")
-def pair():
-    from conftest import _four_bar
-
-    mech, x0 = _four_bar().build()
-    mb = _four_bar()
+def pair(four_bar):
+    mech, x0 = four_bar().build()
+    mb = four_bar()
     mb.cut_joint("B", "B2", name="the same cut twice")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

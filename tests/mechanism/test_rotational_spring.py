@@ -83,17 +83,27 @@ def test_parameters_by_name_and_gradient():
     assert float(stiff.rotational_stiffness[0]) == 2 * K
     with pytest.raises(KeyError, match="no rotational named 'nope'"):
         mech.with_params(rotational={"nope": {"stiffness": 1.0}})
-    xd0 = _spin(x0, W0)
+    # accelerations away from the rest angle, differentiated in the element's three parameters (fwd and rev
+    # against finite differences); rollout gradients share the machinery tested for the other elements
+    from jax.test_util import check_grads
 
-    def loss(k):
-        m = mech.with_params(rotational={"torsion": {"stiffness": k}})
-        s = simulate_mechanism(m, jnp.asarray(x0), xd0, 0.0, 1.0, solver="dopri8", rtol=1e-10, atol=1e-12)
-        return body_angles(m, s.q[-1])[0]
+    from particlesim.mechanism import accelerations
 
-    g = jax.grad(loss)(K)
-    h = 1e-5
-    fd = (loss(K + h) - loss(K - h)) / (2 * h)
-    assert float(g) == pytest.approx(float(fd), rel=1e-5)
+    theta = 0.4
+    a = np.asarray(x0).reshape(-1, 3)[0]
+    x = jnp.asarray([np.cos(theta) * a[0], np.sin(theta) * a[0], 0.0])
+    xd = jnp.asarray([-np.sin(theta), np.cos(theta), 0.0]) * W0
+
+    @jax.jit
+    def acc(params):
+        k, c, th0 = params
+        m = mech.with_params(rotational={"torsion": {"stiffness": k, "damping": c, "free_angle": th0}})
+        return accelerations(m, 0.0, x, xd)
+
+    check_grads(acc, (jnp.asarray([K, C, 0.1]),), order=1, modes=("fwd", "rev"), eps=1e-6, atol=1e-7, rtol=1e-7)
+    # and the value: torque -(k (theta - theta0) + c w) about the pivot of a rod with I_O = 1/3
+    tangential = float(jnp.dot(acc(jnp.asarray([K, C, 0.1])), jnp.asarray([-np.sin(theta), np.cos(theta), 0.0])))
+    assert tangential == pytest.approx(-(K * (theta - 0.1) + C * W0) / (1.0 / 3.0), rel=1e-12)
 
 
 def test_bad_rotational_springs():
