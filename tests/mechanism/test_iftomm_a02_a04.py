@@ -155,3 +155,26 @@ def test_a04_joint_reactions_balance(a04):
         p = np.asarray(mech.all_positions(x))
         i1, i1a = mech.index("P1"), mech.index("P1a")
         np.testing.assert_allclose(np.asarray(m1), np.cross(p[i1a] - p[i1], react[0, 1]), atol=1e-12 * scale)
+
+
+def test_a02_mujoco_twin_approaches_the_parallelogram_motion():
+    """The MuJoCo C twin (soft ``connect`` loops) of a small N-four-bar through its first two flat positions: its
+    error against the one-coordinate model falls as its step is refined (about linearly: soft loops)."""
+    import mujoco
+
+    from particlesim.scenes.four_bar_twin import b0_observer, twin_model
+
+    n, t_end = 2, 2.0
+    ts = np.linspace(0.0, t_end, 41)
+    r = _reduced(n, t_end, ts=ts)
+    ref = np.stack([np.sin(r.y[0]), np.cos(r.y[0])], axis=1)
+    errs = []
+    for dt in (1e-3, 2.5e-4):
+        m, d = twin_model(n, dt)
+        obs, every, out = b0_observer(m), int(round((ts[1] - ts[0]) / dt)), []
+        for k in range(int(round(t_end / dt)) + 1):
+            if k % every == 0:
+                out.append(obs(m, d))
+            mujoco.mj_step(m, d)
+        errs.append(np.max(np.abs(np.asarray(out) - ref)))
+    assert errs[1] < errs[0] / 2.5 and errs[1] < 1e-3, errs
