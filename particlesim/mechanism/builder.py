@@ -239,16 +239,21 @@ class MechanismBuilder:
         self._springs.append((name, a, b, stiffness, damping, free_length))
 
     def tyre(self, name: str, point: str, stiffness: float, damping: float, radius: float, *,
-             normal=(0.0, 0.0, 1.0), ground: float = 0.0) -> None:
-        """One-sided tyre spring-damper acting along ``normal`` on ``point`` while it is within ``radius`` of the
-        ground plane ``p.normal = ground``."""
+             normal=(0.0, 0.0, 1.0), ground: float = 0.0, apply_at: Optional[str] = None) -> None:
+        """One-sided tyre spring-damper acting along ``normal`` while ``point`` (the wheel centre) is within
+        ``radius`` of the ground plane ``p.normal = ground``: force ``k (radius - d) - c d'`` with ``d`` the centre's
+        height. It acts on ``point``, or on ``apply_at`` (e.g. the contact point below the centre, a point of the
+        same body) when given: the deflection is measured at the centre and the force applied at the contact. Its
+        :func:`~.forces.potential_energy` is the deflection energy; with a separate application point the force is
+        not that energy's gradient once the body turns, so energy balances hold only for the centre-applied tyre."""
         for label, v in (("stiffness", stiffness), ("damping", damping), ("radius", radius), ("ground", ground)):
             if not np.isfinite(v) or (label != "ground" and v < 0):
                 raise ModelError(f"tyre '{name}': {label} must be finite" + (" and non-negative" if label != "ground"
                                                                               else "") + f", got {v!r}")
         if name in (t[0] for t in self._tyres):
             raise ModelError(f"tyre '{name}' is defined twice")
-        self._tyres.append((name, point, np.asarray(normal, dtype=float), stiffness, damping, radius, ground))
+        self._tyres.append((name, point, np.asarray(normal, dtype=float), stiffness, damping, radius, ground,
+                            apply_at))
 
     def applied_force(self, name: str, point: str, fn: Callable) -> None:
         """A force ``fn(t, x, xd) -> (3,)`` (global) acting at a particle or point."""
@@ -635,12 +640,13 @@ class _Build:
         springs, tyres = [], []
         for name, a, b, k, c, l0 in mb._springs:
             springs.append((name, (self.pidx(a, f"spring '{name}'"), self.pidx(b, f"spring '{name}'")), k, c, l0))
-        for name, pt, normal, k, c, radius, g in mb._tyres:
+        for name, pt, normal, k, c, radius, g, apply_at in mb._tyres:
             nrm = np.linalg.norm(normal)
             if normal.shape != (3,) or not np.isfinite(nrm) or nrm == 0:
                 raise ModelError(f"tyre '{name}': normal must be a non-zero vector of 3 numbers")
+            at = self.pidx(pt if apply_at is None else apply_at, f"tyre '{name}' (application point)")
             tyres.append((name, self.pidx(pt, f"tyre '{name}'"), tuple(float(v) for v in normal / nrm), k, c,
-                          radius, g))
+                          radius, g, at))
         applied = []
         for name, kind, target, fn in mb._applied:
             if kind == "force":
@@ -672,7 +678,7 @@ class _Build:
                               axis=tuple(r[2] for r in self.lin), labels=tuple(r[3] for r in self.lin)),
             spring_names=tuple(s[0] for s in springs), spring_points=tuple(s[1] for s in springs),
             tyre_names=tuple(t[0] for t in tyres), tyre_points=tuple(t[1] for t in tyres),
-            tyre_normals=tuple(t[2] for t in tyres),
+            tyre_normals=tuple(t[2] for t in tyres), tyre_apply=tuple(t[7] for t in tyres),
             saddle_point=any(i not in in_body for i in free), planar=mb.planar,
             rotational_names=tuple(r[0] for r in rot), rotational_bodies=tuple(r[1] for r in rot))
         if not topo.saddle_point and free:

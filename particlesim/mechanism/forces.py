@@ -69,7 +69,8 @@ def point_forces(mech: Mechanism, t, x, xd, pts: Float[Array, "K 3"], vel: Float
         dist = jnp.sum(pts[k] * n, axis=1) - mech.tyre_ground - mech.tyre_radius
         f = jnp.where(dist < 0.0, -(mech.tyre_stiffness * dist + mech.tyre_damping * jnp.sum(vel[k] * n, axis=1)),
                       0.0)
-        f_pts = f_pts.at[k].add(f[:, None] * n)
+        at = np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k
+        f_pts = f_pts.at[at].add(f[:, None] * n)
     for ap in forces_applied:
         f_pts = f_pts.at[ap.target].add(ap.fn(t, x, xd))
     return f_pts

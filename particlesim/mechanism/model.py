@@ -98,6 +98,7 @@ class Topology:
     tyre_names: tuple[str, ...]
     tyre_points: tuple[int, ...]
     tyre_normals: tuple[tuple[float, float, float], ...]
+    tyre_apply: tuple[int, ...] = ()  # the point each tyre's force acts on (its measuring point unless given)
     saddle_point: bool = False  # the mass matrix is singular (a free particle in no body): solve the full KKT
     least_squares: bool = False  # minimum-norm (damped, refined) multipliers: redundant rows, singular positions
     planar: bool = False  # built as a planar mechanism (x-y plane, every free particle held in it)
