@@ -89,8 +89,7 @@ def run() -> dict:
     return _wp.finish_without_mjx(res, started)
 
 
-def markdown(results: dict) -> str:
-    return _wp.markdown_without_mjx(results)
+markdown = _wp.markdown_without_mjx
 
 
 def main() -> dict:
