@@ -263,7 +263,7 @@ def runtime_checks(y0, time_bad: Array, param_bad, entry: str, names: str):
 
 
 class _Projected(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSolver):
-    """Wraps a diffrax solver; after each step maps ``y1`` through ``projection(y1, args)``."""
+    """Wraps a diffrax solver; after each step maps ``y1`` through ``projection(t1, y1, args)``."""
 
     solver: diffrax.AbstractSolver
     projection: Callable = eqx.field(static=True)
@@ -303,7 +303,7 @@ class _Projected(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSolver):
     def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
         y1, y_error, dense_info, solver_state, result = self.solver.step(
             terms, t0, t1, y0, args, solver_state, made_jump)
-        return self.projection(y1, args), y_error, dense_info, solver_state, result
+        return self.projection(t1, y1, args), y_error, dense_info, solver_state, result
 
     def func(self, terms, t0, y0, args):
         return self.solver.func(terms, t0, y0, args)
@@ -311,7 +311,7 @@ class _Projected(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSolver):
 
 def integrate(field: Callable, y0, args, *, t0: Array, t1: Array, rtol: Array, atol: Array, dt0, ts,
               cfg: Settings, projection: Callable | None = None):
-    """``diffrax.diffeqsolve`` of ``dy/dt = field(t, y, args)`` with the settings ``cfg``; ``projection(y, args)``
+    """``diffrax.diffeqsolve`` of ``dy/dt = field(t, y, args)`` with the settings ``cfg``; ``projection(t, y, args)``
     is applied after every step when given. Returns ``(ts, ys, steps, rejected, result, ok)``; ``ys`` are NaN
     when the run failed (``throw=False``)."""
     implicit = cfg.solver in IMPLICIT_SOLVERS

@@ -8,9 +8,10 @@ from .constraints import constraint_gamma, constraint_jacobian, constraint_label
 from .dynamics import Prepared, prepare, mass_properties, accelerations, accelerations_and_multipliers, kinetic_energy, residuals, total_energy
 from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
 from .integrate import project, simulate_mechanism
+from .kinematics import KinematicSolution, kinematic_analysis
 from .model import Mechanism
 from .outputs import (body_angles, body_com_positions, body_poses, body_reactions, body_velocities, cut_joint_forces,
-                      joint_reaction)
+                      driver_efforts, joint_reaction)
 
 __all__ = [
     "Mechanism",
@@ -40,6 +41,9 @@ __all__ = [
     "body_angular_velocity",
     "project",
     "simulate_mechanism",
+    "kinematic_analysis",
+    "KinematicSolution",
+    "driver_efforts",
     "body_poses",
     "body_com_positions",
     "body_velocities",

@@ -13,7 +13,9 @@ half of ``D``) the Schur complement ``S = J M^-1 J^T`` of the dot rows is
 so per evaluation it costs one Gram product ``E E^T`` and one elementwise combination with the constant ``A``;
 ``J Y`` and ``M^-1 J^T lam`` likewise reduce to ``D Y`` and ``(D M_s^-1)^T`` times row-scaled ``E``. Linear rows
 (cut joints) have a constant Jacobian, so their blocks of ``S`` are constants or (with the dot rows) one
-contraction with a constant tensor. Everything that depends on the parameters only lives in :class:`Prepared`,
+contraction with a constant tensor. Driving rows ``n(t) . (p_a - p_b) - c(t)`` (:class:`~.model.DriveRows`) are
+linear in the coordinates with a direction that depends on time only: their blocks of ``S`` are constants times
+``n . n'`` or ``E . n``, and their right-hand sides carry the time derivatives of ``n`` and ``c``. Everything that depends on the parameters only lives in :class:`Prepared`,
 computed once per parameter set (once per rollout), and is differentiable in the parameters.
 """
 
@@ -31,7 +33,8 @@ from .constraints import linear_blocks, point_free_weights, point_weights, point
 from .model import Mechanism
 
 __all__ = ["Prepared", "prepare", "scalar_mass_matrix", "Rows", "rows", "schur", "apply_j", "apply_minv_jt",
-           "residual", "gamma", "SchurFactor", "factor_schur", "solve_schur", "LSQ_RTOL", "LSQ_REFINE"]
+           "residual", "gamma", "velocity_target", "Drive", "drive_at", "SchurFactor", "factor_schur", "solve_schur",
+           "LSQ_RTOL", "LSQ_REFINE"]
 
 #: Least-squares multipliers: ``S`` is factorised as ``S + mu I`` with ``mu`` this fraction of its largest diagonal
 #: entry (a Tikhonov/Levenberg damping that keeps the factorisation defined when rows are redundant or the
@@ -89,6 +92,13 @@ class Prepared(eqx.Module):
     b_lin: Float[Array, "2D L 3"] | None  # d contracted with jw_lin (dot-linear coupling of S)
     s_lin: Float[Array, "L L"] | None  # the linear rows' block of S
     mwk: Float[Array, "F K"] | None  # minv @ wk^T: point forces to accelerations
+    # Driving rows (empty arrays without drivers):
+    drv_d: Float[Array, "K F"] | None = None  # W_a - W_b of every driving row
+    drv_c0: Float[Array, "K 3"] | None = None  # its ground offset
+    drv_dw: Float[Array, "K F"] | None = None  # drv_d @ minv
+    drv_akk: Float[Array, "K K"] | None = None  # drv_d @ minv @ drv_d^T
+    drv_adk: Float[Array, "2D K"] | None = None  # d @ minv @ drv_d^T
+    drv_blk: Float[Array, "L K 3"] | None = None  # jw_lin contracted with drv_d
 
 
 def prepare(mech: Mechanism) -> Prepared:
@@ -115,6 +125,13 @@ def prepare(mech: Mechanism) -> Prepared:
     j_lin = (wk[la] - wk[lb])[:, :, None] * e[:, None, :]
     c_lin = jnp.sum(e * (p0[la] - p0[lb]), axis=1)
     base = dict(w=w, wk=wk, p0=p0, ms=ms, lumped=lumped, qg=qg, d=d, c=c, scale=scale, j_lin=j_lin, c_lin=c_lin)
+    dr = topo.drive
+    if len(dr):
+        da, db = np.asarray(dr.a, dtype=int), np.asarray(dr.b, dtype=int)
+        origin = db < 0  # a driver measured from the world origin: no second point
+        drv_d = wk[da] - jnp.where(jnp.asarray(origin)[:, None], 0.0, wk[np.where(origin, 0, db)])
+        drv_c0 = p0[da] - jnp.where(jnp.asarray(origin)[:, None], 0.0, p0[np.where(origin, 0, db)])
+        base.update(drv_d=drv_d, drv_c0=drv_c0)
     if topo.saddle_point:
         return Prepared(**base, minv=None, minv_qg=None, dw=None, a=None, jw_lin=None, b_lin=None, s_lin=None,
                         mwk=None)
@@ -122,16 +139,70 @@ def prepare(mech: Mechanism) -> Prepared:
     minv = 0.5 * (minv + minv.T)
     dw = d @ minv
     jw_lin = jnp.einsum("lfk,fg->lgk", j_lin, minv)
+    if len(dr):
+        drv_dw = base["drv_d"] @ minv
+        base.update(drv_dw=drv_dw, drv_akk=drv_dw @ base["drv_d"].T, drv_adk=dw @ base["drv_d"].T,
+                    drv_blk=jnp.einsum("lfk,qf->lqk", jw_lin, base["drv_d"]))
     return Prepared(**base, minv=minv, minv_qg=minv @ qg, dw=dw, a=dw @ d.T, jw_lin=jw_lin,
                     b_lin=jnp.einsum("if,lfk->ilk", d, jw_lin), s_lin=jnp.einsum("lfk,mfk->lm", j_lin, jw_lin),
                     mwk=minv @ wk.T)
 
 
+class Drive(eqx.Module):
+    """The driving rows at one time: directions ``n`` and their first two time derivatives, targets ``c`` and
+    theirs (:class:`~.model.DriveRows`)."""
+
+    n: Float[Array, "K 3"]
+    nd: Float[Array, "K 3"]
+    ndd: Float[Array, "K 3"]
+    c: Float[Array, " K"]
+    cd: Float[Array, " K"]
+    cdd: Float[Array, " K"]
+
+
+def _derivatives(fn, t):
+    """``f(t), f'(t), f''(t)`` of a scalar function of time by forward-mode autodiff."""
+    one = jnp.ones_like(t)
+
+    def first(s):
+        return jax.jvp(lambda u: jnp.asarray(fn(u), dtype=t.dtype).reshape(()), (s,), (one,))
+
+    (f, fd), (_, fdd) = jax.jvp(first, (t,), (one,))
+    return f, fd, fdd
+
+
+def drive_at(mech: Mechanism, t) -> Drive | None:
+    """The driving rows' directions and targets at time ``t`` (``None`` without drivers)."""
+    dr = mech.topo.drive
+    if not len(dr):
+        return None
+    dtype = mech.body_mass.dtype
+    t = jnp.asarray(t, dtype=dtype)
+    f, fd, fdd = (jnp.stack(v) for v in zip(*(_derivatives(fn, t) for fn in mech.drive_fns)))
+    a = jnp.asarray(dr.axis, dtype=dtype)
+    k = jnp.asarray(dr.spin, dtype=dtype)
+    ang = jnp.asarray(dr.angle)
+    kxa = jnp.cross(k, a)
+    cs, sn = jnp.cos(f)[:, None], jnp.sin(f)[:, None]
+    n_rot = cs * a + sn * kxa
+    m_rot = -sn * a + cs * kxa  # d n / d theta
+    n = jnp.where(ang[:, None], n_rot, a)
+    nd = jnp.where(ang[:, None], fd[:, None] * m_rot, 0.0)
+    ndd = jnp.where(ang[:, None], fdd[:, None] * m_rot - (fd**2)[:, None] * n_rot, 0.0)
+    zero = jnp.zeros_like(f)
+    return Drive(n=n, nd=nd, ndd=ndd, c=jnp.where(ang, zero, mech.drive_offset + f), cd=jnp.where(ang, zero, fd),
+                 cdd=jnp.where(ang, zero, fdd))
+
+
 class Rows(eqx.Module):
-    """The dot rows' vectors at one state: ``vu = [v; u]`` (2D, 3) and their rates ``dvu``."""
+    """The dot rows' vectors at one state: ``vu = [v; u]`` (2D, 3) and their rates ``dvu``; with drivers their
+    values at the state's time and the driven vectors ``p_a - p_b`` (and rates)."""
 
     vu: Float[Array, "2D 3"]
     dvu: Float[Array, "2D 3"] | None
+    drive: Drive | None = None
+    du: Float[Array, "K 3"] | None = None
+    ddu: Float[Array, "K 3"] | None = None
 
 
 def _mm(a: Array, b: Array) -> Array:
@@ -140,9 +211,17 @@ def _mm(a: Array, b: Array) -> Array:
     return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
 
 
-def rows(prep: Prepared, x: Float[Array, " 3F"], xd=None) -> Rows:
+def rows(prep: Prepared, x: Float[Array, " 3F"], xd=None, drive: Drive | None = None) -> Rows:
+    """The rows' vectors at ``(x, xd)``; ``drive`` (:func:`drive_at`) is required when the mechanism has drivers."""
     vu = _mm(prep.d, x.reshape(-1, 3)) + prep.c
-    return Rows(vu, None if xd is None else _mm(prep.d, xd.reshape(-1, 3)))
+    dvu = None if xd is None else _mm(prep.d, xd.reshape(-1, 3))
+    if prep.drv_d is None:
+        return Rows(vu, dvu)
+    if drive is None:
+        raise ValueError("this mechanism has driving constraints: give the time (drive_at(mech, t))")
+    du = _mm(prep.drv_d, x.reshape(-1, 3)) + prep.drv_c0
+    ddu = None if xd is None else _mm(prep.drv_d, xd.reshape(-1, 3))
+    return Rows(vu, dvu, drive, du, ddu)
 
 
 def _partner(vu: Array) -> Array:
@@ -155,14 +234,29 @@ def residual(prep: Prepared, kappa: Array, r: Rows, x: Array) -> Float[Array, " 
     n = prep.scale.shape[0]
     dot = prep.scale * jnp.sum(r.vu[:n] * r.vu[n:], axis=1) - kappa
     lin = jnp.sum(prep.j_lin * x.reshape(1, -1, 3), axis=(1, 2)) + prep.c_lin
-    return jnp.concatenate([dot, lin])
+    if r.drive is None:
+        return jnp.concatenate([dot, lin])
+    return jnp.concatenate([dot, lin, jnp.sum(r.drive.n * r.du, axis=1) - r.drive.c])
 
 
 def gamma(prep: Prepared, r: Rows) -> Float[Array, " C"]:
     """``-d^2 Phi/dt^2`` at zero acceleration: ``-2 s dv . du`` for dot rows, zero for linear rows."""
     n = prep.scale.shape[0]
     dot = -2.0 * prep.scale * jnp.sum(r.dvu[:n] * r.dvu[n:], axis=1)
-    return jnp.concatenate([dot, jnp.zeros(prep.c_lin.shape, dtype=dot.dtype)])
+    lin = jnp.zeros(prep.c_lin.shape, dtype=dot.dtype)
+    if r.drive is None:
+        return jnp.concatenate([dot, lin])
+    dv = r.drive
+    drv = dv.cdd - 2.0 * jnp.sum(dv.nd * r.ddu, axis=1) - jnp.sum(dv.ndd * r.du, axis=1)
+    return jnp.concatenate([dot, lin, drv])
+
+
+def velocity_target(prep: Prepared, r: Rows) -> Float[Array, " C"] | float:
+    """The right-hand side of ``J xd = nu``: zero, except ``c' - n' . (p_a - p_b)`` on driving rows."""
+    if r.drive is None:
+        return 0.0
+    zeros = jnp.zeros(prep.scale.shape[0] + prep.c_lin.shape[0], dtype=r.du.dtype)
+    return jnp.concatenate([zeros, r.drive.cd - jnp.sum(r.drive.nd * r.du, axis=1)])
 
 
 def schur(prep: Prepared, r: Rows) -> Float[Array, "C C"]:
@@ -177,9 +271,18 @@ def schur(prep: Prepared, r: Rows) -> Float[Array, "C C"]:
             for i in range(2) for j in range(2))
     s_dd = prep.scale[:, None] * prep.scale[None, :] * h
     if prep.c_lin.shape[0] == 0:
-        return s_dd
-    s_dl = prep.scale[:, None] * jnp.sum(e[:, None, :] * prep.b_lin, axis=2).reshape(2, n, -1).sum(axis=0)
-    return jnp.block([[s_dd, s_dl], [s_dl.T, prep.s_lin]])
+        s = s_dd
+    else:
+        s_dl = prep.scale[:, None] * jnp.sum(e[:, None, :] * prep.b_lin, axis=2).reshape(2, n, -1).sum(axis=0)
+        s = jnp.block([[s_dd, s_dl], [s_dl.T, prep.s_lin]])
+    if r.drive is None:
+        return s
+    nk = r.drive.n
+    s_dk = prep.scale[:, None] * (prep.drv_adk * (e @ nk.T)).reshape(2, n, -1).sum(axis=0)  # (D, K)
+    s_lk = jnp.sum(prep.drv_blk * nk[None], axis=2)  # (L, K)
+    s_kk = prep.drv_akk * (nk @ nk.T)
+    s_xk = jnp.concatenate([s_dk, s_lk], axis=0)
+    return jnp.block([[s, s_xk], [s_xk.T, s_kk]])
 
 
 def apply_j(prep: Prepared, r: Rows, y: Float[Array, "F 3"]) -> Float[Array, " C"]:
@@ -187,14 +290,22 @@ def apply_j(prep: Prepared, r: Rows, y: Float[Array, "F 3"]) -> Float[Array, " C
     n = prep.scale.shape[0]
     dy = _mm(prep.d, y)
     dot = prep.scale * jnp.sum((_partner(r.vu) * dy).reshape(2, n, 3), axis=(0, 2))
-    return jnp.concatenate([dot, jnp.sum(prep.j_lin * y[None], axis=(1, 2))])
+    out = [dot, jnp.sum(prep.j_lin * y[None], axis=(1, 2))]
+    if r.drive is not None:
+        out.append(jnp.sum(_mm(prep.drv_d, y) * r.drive.n, axis=1))
+    return jnp.concatenate(out)
 
 
 def apply_minv_jt(prep: Prepared, r: Rows, lam: Float[Array, " C"]) -> Float[Array, "F 3"]:
     """``M^-1 J^T lam`` as (F, 3)."""
     n = prep.scale.shape[0]
     ls = jnp.tile(lam[:n] * prep.scale, 2)[:, None] * _partner(r.vu)
-    return jnp.sum(prep.dw[:, :, None] * ls[:, None, :], axis=0) + jnp.sum(prep.jw_lin * lam[n:, None, None], axis=0)
+    nl = prep.c_lin.shape[0]
+    out = jnp.sum(prep.dw[:, :, None] * ls[:, None, :], axis=0) + jnp.sum(prep.jw_lin * lam[n:n + nl, None, None],
+                                                                          axis=0)
+    if r.drive is None:
+        return out
+    return out + prep.drv_dw.T @ (lam[n + nl:, None] * r.drive.n)
 
 
 def jacobian(prep: Prepared, r: Rows) -> Float[Array, "C F 3"]:
@@ -202,7 +313,10 @@ def jacobian(prep: Prepared, r: Rows) -> Float[Array, "C F 3"]:
     n = prep.scale.shape[0]
     e = _partner(r.vu)
     j_dot = (prep.d[:, :, None] * e[:, None, :]).reshape(2, n, prep.d.shape[1], 3).sum(axis=0)
-    return jnp.concatenate([prep.scale[:, None, None] * j_dot, prep.j_lin], axis=0)
+    out = [prep.scale[:, None, None] * j_dot, prep.j_lin]
+    if r.drive is not None:
+        out.append(prep.drv_d[:, :, None] * r.drive.n[:, None, :])
+    return jnp.concatenate(out, axis=0)
 
 
 class SchurFactor(eqx.Module):

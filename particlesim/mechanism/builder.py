@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import ModelError
 from ..inertia import RigidInertia, check_inertia
 from ..particles import N_PRIMARY, check_placement, equivalent_particles
-from .model import AppliedSpec, DotRows, LinearRows, Mechanism, Topology
+from .model import AppliedSpec, DotRows, DriveRows, LinearRows, Mechanism, Topology
 
 __all__ = ["MechanismBuilder", "ConstraintRank", "RedundantConstraintsWarning", "ASSEMBLY_RTOL", "RANK_RTOL"]
 
@@ -76,6 +76,7 @@ class MechanismBuilder:
         self._tyres: list[tuple] = []
         self._rotational: list[tuple] = []
         self._applied: list[tuple] = []
+        self._drives: list[tuple] = []  # (name, kind, target, fn, axis, relative_to)
 
     def _vec(self, xyz, what: str) -> np.ndarray:
         """A 3-vector from 3 numbers (or 2 in a planar mechanism, z = 0); a planar one must have z = 0."""
@@ -219,6 +220,18 @@ class MechanismBuilder:
         self._joints.append(("cylindrical", (*axis_a, *axis_b), name or f"cylindrical {axis_a[0]}-{axis_b[0]}",
                              None))
 
+    def fixed(self, body_a: Optional[str], body_b: str, *, at=None, name: Optional[str] = None) -> None:
+        """Fixed (welded) joint: ``body_b`` keeps its pose relative to ``body_a`` (``None``: the ground). The bodies
+        meet at ``at`` (global, assembly; default: ``body_b``'s first primary particle), where their points coincide,
+        and rows between directions fixed in each body lock the relative rotation (3 in space, one fewer per rod,
+        whose spin about its own line is no freedom; 1 in a plane). ``at`` must be a place both bodies can carry a
+        point (on the line of a rod, in the plane of a planar body)."""
+        label = name or f"fixed {body_a or 'ground'}-{body_b}"
+        if body_a == body_b:
+            raise ModelError(f"{label}: welds body '{body_b}' to itself")
+        at = None if at is None else self._vec(at, f"{label}: at")
+        self._joints.append(("fixed", (body_a, body_b, at), label, None))
+
     # ---- force elements ----
     def point(self, name: str, body: Optional[str], xyz) -> str:
         """A named point fixed to ``body`` at global ``xyz`` (assembly). A point of a planar body must lie in the
@@ -262,6 +275,64 @@ class MechanismBuilder:
     def applied_torque(self, name: str, body: str, fn: Callable) -> None:
         """A torque ``fn(t, x, xd) -> (3,)`` (global) acting on a spatial or planar body."""
         self._applied.append((name, "torque", body, fn))
+
+    def body_load(self, name: str, bodies: Sequence[str], fn: Callable) -> None:
+        """Loads computed from the named bodies' states: ``fn(t, state) -> {body: (force, torque)}`` where ``state``
+        is a :class:`~.model.BodyState` (``state.position["wheel"]`` the centre of mass, ``.rotation``,
+        ``.velocity``, ``.angular_velocity``, world frame) and each force (N, world) acts at that body's centre of
+        mass, each torque (N m, world) on the body; bodies left out of the returned dict get no load. The natural
+        place for aerodynamic drag, bushings, tyre models or controllers that need body poses rather than particle
+        vectors. ``fn`` must be JAX-traceable; an ``equinox.Module`` with array fields makes its arrays parameters
+        (differentiable, and new values reuse the compiled rollout)."""
+        if not callable(fn):
+            raise ModelError(f"body load '{name}': needs a function fn(t, state), got {type(fn).__name__}")
+        if isinstance(bodies, str) or not len(bodies):
+            raise ModelError(f"body load '{name}': bodies must be a non-empty list of body names")
+        self._applied.append((name, "load", tuple(bodies), fn))
+
+    # ---- driving constraints ----
+    def _driver(self, name: str, fn) -> None:
+        if any(d[0] == name for d in self._drives):
+            raise ModelError(f"driver '{name}' is defined twice")
+        if not callable(fn):
+            raise ModelError(f"driver '{name}': needs a function of time f(t), got {type(fn).__name__}")
+        try:
+            v = np.asarray(fn(jnp.asarray(0.0)), dtype=float)
+        except Exception as e:  # noqa: BLE001 — report any failure of the user's function with the driver's name
+            raise ModelError(f"driver '{name}': f(0.0) failed: {type(e).__name__}: {e}") from None
+        if v.shape != () or not np.isfinite(v):
+            raise ModelError(f"driver '{name}': f(t) must return one finite number, got {v.tolist()!r} at t = 0")
+
+    def drive_angle(self, name: str, body: str, fn: Callable, *, axis=(0.0, 0.0, 1.0)) -> None:
+        """Prescribe the rotation of ``body`` about the fixed world direction ``axis`` (through any point): it is
+        turned by ``fn(t)`` radians (right-handed about ``axis``) from its pose as built. One row; the body must be
+        otherwise free to turn about that direction only (e.g. a crank on a revolute joint to the ground). The row
+        is scaled so that its multiplier is the driving torque (:func:`~.outputs.driver_efforts`).
+
+        ``fn`` is a JAX-traceable scalar function of time (its first two derivatives are taken by autodiff), e.g.
+        ``lambda t: 150.0 * t``; an ``equinox.Module`` with array fields makes its arrays parameters. At the
+        initial time of a run ``fn`` should be 0, or the initial state be made consistent
+        (:func:`~.integrate.project` with ``t``)."""
+        self._driver(name, fn)
+        k = np.asarray(axis, dtype=float)
+        if k.shape != (3,) or not np.all(np.isfinite(k)):
+            raise ModelError(f"driver '{name}': axis must be 3 finite numbers, got {np.asarray(axis).tolist()}")
+        if np.linalg.norm(k) == 0:
+            raise ModelError(f"driver '{name}': axis must be a non-zero vector")
+        if self.planar and (k[0] != 0 or k[1] != 0):
+            raise ModelError(f"driver '{name}': a planar mechanism turns about z only, got axis {k.tolist()}")
+        self._drives.append((name, "angle", body, fn, _unit(k), None))
+
+    def drive_position(self, name: str, point: str, fn: Callable, *, axis, relative_to: Optional[str] = None) -> None:
+        """Prescribe the motion of a particle or point along the fixed unit direction ``axis``: it moves ``fn(t)``
+        (metres) along ``axis`` from its assembly position, measured from the world origin or from the particle or
+        point ``relative_to``. One row; its multiplier is the driving force (:func:`~.outputs.driver_efforts`).
+        ``fn`` as in :meth:`drive_angle`."""
+        self._driver(name, fn)
+        e = self._vec(axis, f"driver '{name}': axis")
+        if np.linalg.norm(e) == 0:
+            raise ModelError(f"driver '{name}': axis must be a non-zero vector")
+        self._drives.append((name, "position", point, fn, _unit(e), relative_to))
 
     # ---- build ----
     def build(self, *, dof: Optional[int] = None, assemble: bool = False, hold: Sequence = (),
@@ -338,6 +409,7 @@ class _Build:
         self.point_index: dict[str, int] = {}
         self.dot: list[tuple] = []  # (a, b, c, d, scale, kappa, label)
         self.lin: list[tuple] = []  # (a, b, axis, label)
+        self.drv: list[tuple] = []  # (a, b, axis, spin, offset, label, fn)
 
     def run(self, dof, assemble=False, hold=(), multipliers="auto"):
         self.bodies()
@@ -350,6 +422,7 @@ class _Build:
         self.points()
         self.body_rows()
         self.joints(plans)
+        self.drives()
         if self.mb.planar:
             plane = self.index[_PLANE]
             for i in range(len(self.names)):
@@ -377,8 +450,10 @@ class _Build:
         kappa = np.asarray(mech.dot_kappa)
         size = max(float(np.ptp(pts0, axis=0).max()) if len(pts0) else 0.0, 1e-12)
 
+        offset = np.asarray(mech.drive_offset)
+
         def rows(x):
-            return _np_rows(topo, kappa, pts0 + wk @ (x - x0).reshape(-1, 3), wk)
+            return _np_rows(topo, kappa, pts0 + wk @ (x - x0).reshape(-1, 3), wk, offset)
 
         held = held_columns(topo.particle_names, topo.free, hold)
         x, res, it = gauss_newton(rows, x0, held, ASSEMBLE_RTOL * size * max(size, 1.0), topo.row_labels())
@@ -442,6 +517,9 @@ class _Build:
         directions normal to the axis, fixed in the host (as points at ``origin + ell * n``)."""
         plans = []
         for kind, pnames, label, length in self.mb._joints:
+            if kind == "fixed":
+                plans.append(self._fixed_plan(pnames, label))
+                continue
             world = [self.where(n, label)[0] for n in pnames]
             dirs, host, ell = (), None, None
             if kind == "on_line":
@@ -508,6 +586,79 @@ class _Build:
             plans.append((kind, pnames, label, length, host, origin, dirs, ell, names))
         return plans
 
+    def _directions(self, b: int) -> list[np.ndarray]:
+        """Unit directions fixed in body ``b`` (``-1``: the ground) at assembly: the axes for the ground and a
+        spatial body, the two in-plane directions of a planar set (or the x and y axes in a planar mechanism), the
+        line of a rod."""
+        if b < 0 or len(self.body_particles[b]) == 4:
+            return [np.asarray(e) for e in _AXES[:2 if self.mb.planar else 3]]
+        p = np.stack([self.pos[i] for i in self.body_particles[b]])
+        e1 = _unit(p[1] - p[0])
+        if len(p) == 2:
+            return [e1]
+        if self.mb.planar:
+            return [np.asarray(e) for e in _AXES[:2]]
+        w = (p[2] - p[0]) - ((p[2] - p[0]) @ e1) * e1
+        return [e1, _unit(w)]
+
+    def _fixed_plan(self, pnames, label):
+        """Rows of a fixed joint: the meeting point (coincident points of both bodies) and a set of independent
+        direction pairs ``a_i . b_j = const`` chosen at assembly by their sensitivity to a relative rotation
+        (``b_j x a_i``), largest first."""
+        names = {n: i for i, n in enumerate(self.body_names)}
+        ids = []
+        for n in pnames[:2]:
+            if n is None:
+                ids.append(-1)
+            elif n not in names:
+                raise ModelError(f"{label}: unknown body '{n}'")
+            else:
+                ids.append(names[n])
+        ba, bb = ids
+        at = pnames[2] if pnames[2] is not None else self.pos[self.body_particles[bb][0]]
+        da, db = self._directions(ba), self._directions(bb)
+        rods = sum(1 for b in ids if b >= 0 and len(self.body_particles[b]) == 2)
+        need = 1 if self.mb.planar else 3 - rods
+        cand = sorted(((np.cross(db[j], da[i]), i, j) for i in range(len(da)) for j in range(len(db))),
+                      key=lambda c: -np.linalg.norm(c[0]))
+        chosen, basis = [], []
+        for g, i, j in cand:
+            g = g[2:] if self.mb.planar else g
+            r = g - sum((g @ q) * q for q in basis) if basis else g
+            if np.linalg.norm(r) > 1e-6 and len(chosen) < need:
+                basis.append(r / np.linalg.norm(r))
+                chosen.append((i, j))
+        if len(chosen) < need:
+            raise ModelError(f"{label}: the directions of the two bodies cannot lock their relative rotation (e.g. "
+                             "two collinear rods); merge them into one body instead")
+        hidden = []
+        if ba < 0:  # the ground's side: hidden ground particles at the meeting point and along its directions
+            used = sorted({i for i, _ in chosen})
+            for nm, xyz in [(f"{label} / at", at)] + [(f"{label} / direction {i + 1}", at + da[i]) for i in used]:
+                self.index[nm] = len(self.names)
+                self.names.append(nm)
+                self.pos.append(np.asarray(xyz, dtype=float))
+                self.is_ground.append(True)
+                hidden.append(nm)
+        return ("fixed", pnames, label, None, (ba, bb), at, (da, db, chosen), None, hidden)
+
+    def _fixed_rows(self, plan):
+        _, _, label, _, (ba, bb), at, (da, db, chosen), _, hidden = plan
+        side = {}
+        for tag, b, dirs in (("a", ba, da), ("b", bb, db)):
+            if b < 0:
+                pa = self.point_index[hidden[0]]
+                side[tag] = (pa, {int(nm.rsplit(" ", 1)[1]) - 1: self.point_index[nm] for nm in hidden[1:]})
+                continue
+            p = self.add_point(f"{label} / at ({tag})", b, at)
+            used = sorted({(i if tag == "a" else j) for i, j in chosen})
+            side[tag] = (p, {k: self.add_point(f"{label} / direction {k + 1} ({tag})", b, at + dirs[k]) for k in used})
+        (pa, dira), (pb, dirb) = side["a"], side["b"]
+        for axis, c in list(zip(_AXES, "xyz"))[:2 if self.mb.planar else 3]:
+            self.lin.append((pa, pb, axis, f"{label} ({c})"))
+        for i, j in chosen:
+            self.dot.append((dira[i], pa, dirb[j], pb, 1.0, float(da[i] @ db[j]), f"{label} (rotation {i + 1}{j + 1})"))
+
     def add_point(self, name: str, body: int, world: np.ndarray) -> int:
         """A point fixed to ``body`` (``-1``: a particle point) at assembly position ``world``."""
         if name in self.point_index:
@@ -569,7 +720,11 @@ class _Build:
 
     def joints(self, plans):
         planar = self.mb.planar
-        for kind, pnames, label, length, host, origin, dirs, ell, ground_names in plans:
+        for plan in plans:
+            kind, pnames, label, length, host, origin, dirs, ell, ground_names = plan
+            if kind == "fixed":
+                self._fixed_rows(plan)
+                continue
             ks = tuple(self.pidx(n, label) for n in pnames)
             world = [self.point_world[k] for k in ks]
             if kind == "link":
@@ -623,6 +778,37 @@ class _Build:
                 if not planar:
                     self.dot.append((n[2], a0, b2, b0, 1.0 / ell, 0.0, f"{label} (rotation)"))
 
+    def drives(self):
+        size = max(float(np.ptp(np.asarray(self.pos), axis=0).max()), 1e-12) if self.pos else 1.0
+        for name, kind, target, fn, axis, rel in self.mb._drives:
+            label = f"driver '{name}'"
+            if kind == "position":
+                a = self.pidx(target, label)
+                b = -1 if rel is None else self.pidx(rel, label)
+                pb = np.zeros(3) if b < 0 else self.point_world[b]
+                if b == a:
+                    raise ModelError(f"{label}: the point '{target}' is measured from itself")
+                offset = float(axis @ (self.point_world[a] - pb))
+                self.drv.append((a, b, tuple(axis), (0.0, 0.0, 0.0), offset, label, fn))
+                continue
+            if target not in self.body_names:
+                raise ModelError(f"{label}: unknown body '{target}'")
+            ids = self.body_particles[self.body_names.index(target)]
+            best = None
+            for s_ in range(len(ids)):
+                for t_ in range(s_ + 1, len(ids)):
+                    u = self.pos[ids[t_]] - self.pos[ids[s_]]
+                    perp = u - (u @ axis) * axis
+                    if best is None or np.linalg.norm(perp) > best[0]:
+                        best = (float(np.linalg.norm(perp)), ids[s_], ids[t_], u)
+            if best[0] <= 1e-9 * size:
+                raise ModelError(f"{label}: the particles of body '{target}' lie on a line along the drive axis "
+                                 f"{axis.tolist()}; a rotation about it does not move them")
+            ell, i, j, u = best
+            n0 = np.cross(axis, u) / ell**2
+            self.drv.append((self.point_index[self.names[j]], self.point_index[self.names[i]], tuple(n0),
+                             tuple(axis), 0.0, label, fn))
+
     def check_dangling(self):
         constrained = set()
         for a, b, c, d, *_ in self.dot:
@@ -651,6 +837,12 @@ class _Build:
         for name, kind, target, fn in mb._applied:
             if kind == "force":
                 applied.append(AppliedSpec(name=name, kind=kind, target=self.pidx(target, f"force '{name}'"), fn=fn))
+            elif kind == "load":
+                for b in target:
+                    if b not in self.body_names:
+                        raise ModelError(f"body load '{name}': unknown body '{b}'")
+                applied.append(AppliedSpec(name=name, kind=kind, target=tuple(self.body_names.index(b)
+                                                                              for b in target), fn=fn))
             else:
                 if target not in self.body_names or len(self.body_particles[self.body_names.index(target)]) == 2:
                     raise ModelError(f"torque '{name}': '{target}' is not a spatial or planar body")
@@ -680,7 +872,12 @@ class _Build:
             tyre_names=tuple(t[0] for t in tyres), tyre_points=tuple(t[1] for t in tyres),
             tyre_normals=tuple(t[2] for t in tyres), tyre_apply=tuple(t[7] for t in tyres),
             saddle_point=any(i not in in_body for i in free), planar=mb.planar,
-            rotational_names=tuple(r[0] for r in rot), rotational_bodies=tuple(r[1] for r in rot))
+            rotational_names=tuple(r[0] for r in rot), rotational_bodies=tuple(r[1] for r in rot),
+            drive=DriveRows(a=tuple(r[0] for r in self.drv), b=tuple(r[1] for r in self.drv),
+                            axis=tuple(tuple(float(v) for v in r[2]) for r in self.drv),
+                            spin=tuple(tuple(float(v) for v in r[3]) for r in self.drv),
+                            labels=tuple(r[5] for r in self.drv),
+                            names=tuple(d[0] for d in self.mb._drives)))
         if not topo.saddle_point and free:
             ev = np.linalg.eigvalsh(_np_mass_matrix(self, topo))
             if ev[0] <= 1e-12 * max(ev[-1], 1e-300):  # singular particle mass matrix: solve the full KKT system
@@ -703,7 +900,8 @@ class _Build:
             tyre_radius=f([t[5] for t in tyres]).reshape(-1), tyre_ground=f([t[6] for t in tyres]).reshape(-1),
             gravity=f(mb.gravity), rotational_stiffness=f([r[2] for r in rot]).reshape(-1),
             rotational_damping=f([r[3] for r in rot]).reshape(-1),
-            rotational_free_angle=f([r[4] for r in rot]).reshape(-1), applied=tuple(applied), topo=topo)
+            rotational_free_angle=f([r[4] for r in rot]).reshape(-1), applied=tuple(applied), topo=topo,
+            drive_offset=f([r[4] for r in self.drv]).reshape(-1), drive_fns=tuple(r[6] for r in self.drv))
 
 
 def _np_point_weights(bd: _Build, topo: Topology) -> np.ndarray:
@@ -726,8 +924,9 @@ def _np_point_weights(bd: _Build, topo: Topology) -> np.ndarray:
     return w
 
 
-def _np_rows(topo: Topology, kappa: np.ndarray, pts: np.ndarray, wk: np.ndarray):
-    """Residuals and Jacobian ``(C, 3F)`` of all rows at point positions ``pts`` (NumPy)."""
+def _np_rows(topo: Topology, kappa: np.ndarray, pts: np.ndarray, wk: np.ndarray, offset=None):
+    """Residuals and Jacobian ``(C, 3F)`` of all rows at point positions ``pts`` (NumPy); driving rows as built
+    (``f = 0``, targets ``offset``)."""
     d, lin = topo.dot, topo.linear
     res, jac = [], []
     if len(d):
@@ -743,6 +942,14 @@ def _np_rows(topo: Topology, kappa: np.ndarray, pts: np.ndarray, wk: np.ndarray)
         res.append(np.sum(axis * (pts[a] - pts[b]), axis=1))
         blocks = np.stack([axis, -axis], axis=1)
         jac.append(np.einsum("rsk,rsf->rfk", blocks, wk[lin.slots]))
+    dr = topo.drive
+    if len(dr):
+        a, b = np.asarray(dr.a, dtype=int), np.asarray(dr.b, dtype=int)
+        n0 = np.asarray(dr.axis, dtype=float)
+        pb = np.where((b < 0)[:, None], 0.0, pts[np.where(b < 0, 0, b)])
+        wb = np.where((b < 0)[:, None], 0.0, wk[np.where(b < 0, 0, b)])
+        res.append(np.sum(n0 * (pts[a] - pb), axis=1) - np.asarray(offset, dtype=float))
+        jac.append((wk[a] - wb)[:, :, None] * n0[:, None, :])
     n = 3 * len(topo.free)
     if not res:
         return np.zeros(0), np.zeros((0, n))
@@ -778,7 +985,7 @@ def _check(bd: _Build, mech: Mechanism, x0: np.ndarray, dof: Optional[int], mult
     pts = np.asarray(bd.point_world)
     size = max(float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0, 1e-12)
     wk = _np_point_weights(bd, topo)
-    res, j = _np_rows(topo, np.asarray(mech.dot_kappa), pts, wk)
+    res, j = _np_rows(topo, np.asarray(mech.dot_kappa), pts, wk, np.asarray(mech.drive_offset))
     labels = topo.row_labels()
     bad = [(labels[i], float(res[i])) for i in np.flatnonzero(np.abs(res) > ASSEMBLY_RTOL * size * max(size, 1.0))]
     if bad:
@@ -796,6 +1003,11 @@ def _check(bd: _Build, mech: Mechanism, x0: np.ndarray, dof: Optional[int], mult
         rank = int(np.sum(sv > RANK_RTOL * sv[0]))
         if rank < j.shape[0]:
             redundant = _redundant_rows(j, labels)
+            drivers = [r for r in redundant if r in topo.drive.labels]
+            if drivers:
+                raise ModelError(f"{drivers[0]} is inconsistent with the other constraints: it prescribes a motion "
+                                 "that the joints (or another driver) already fix, so the two may contradict each "
+                                 "other; drive a coordinate that is free")
             if multipliers == "exact":
                 raise ModelError(f"over-constrained: {j.shape[0] - rank} redundant constraint(s) among "
                                  f"{j.shape[0]}; first redundant: {redundant[0]} (build with "

@@ -48,6 +48,8 @@ class ChainPlan(eqx.Module):
 def chain_plan(mech: Mechanism) -> ChainPlan:
     """Recognise a uniform serial chain in ``mech`` (bodies in chain order) or raise :class:`ModelError`."""
     topo = mech.topo
+    if len(topo.drive):
+        raise ModelError("recursive chain solve: driving constraints need solve='dense'")
     if len(topo.linear) or topo.spring_names or topo.tyre_names or topo.rotational_names or mech.applied or \
             len(topo.point_names) != topo.n_particles:
         raise ModelError("recursive chain solve: only bodies, shared particles and gravity are supported")

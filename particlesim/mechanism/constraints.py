@@ -15,8 +15,9 @@ with ``u = p_c - p_d`` and ``v = p_a - p_b``. The Jacobian w.r.t. the free coord
 weights: ``J[row, f] = sum_slots block(slot) W[point(slot), f]`` with ``W`` (K, F) the point-to-free-particle
 weights, which depend on parameters only (computed once per parameter set, :class:`~.dynamics.Prepared`).
 
-Row order: all dot rows (body distances, then joint rows in declaration order), then all linear rows.
-The acceleration-level form is ``J(x) xdd = gamma(x, xd)``; no row depends on time explicitly.
+Row order: all dot rows (body distances, then joint rows in declaration order), then all linear rows, then the
+driving rows ``n(t) . (p_a - p_b) - c(t)`` (:class:`~.model.DriveRows`), the only rows that depend on time. The
+acceleration-level form is ``J(x, t) xdd = gamma(x, xd, t)``, the velocity-level one ``J xd = nu(x, t)``.
 """
 
 from __future__ import annotations
@@ -89,8 +90,14 @@ def _dot_geometry(topo: Topology, p):
     return v, u, jnp.asarray(rows.scale, dtype=p.dtype)
 
 
-def row_residuals(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, " C"]:
-    """All constraint residuals from the point positions."""
+def _driven_vectors(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, "K 3"]:
+    dr = mech.topo.drive
+    a, b = np.asarray(dr.a, dtype=int), np.asarray(dr.b, dtype=int)
+    return pts[a] - jnp.where(jnp.asarray(b < 0)[:, None], 0.0, pts[np.where(b < 0, 0, b)])
+
+
+def row_residuals(mech: Mechanism, pts: Float[Array, "K 3"], t=0.0) -> Float[Array, " C"]:
+    """All constraint residuals from the point positions (at time ``t``: driving rows only)."""
     topo = mech.topo
     out = []
     if len(topo.dot):
@@ -100,6 +107,11 @@ def row_residuals(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, " C
         rows = topo.linear
         d = pts[np.asarray(rows.a, dtype=int)] - pts[np.asarray(rows.b, dtype=int)]
         out.append(jnp.sum(jnp.asarray(rows.axis, dtype=pts.dtype) * d, axis=1))
+    if len(topo.drive):
+        from ._algebra import drive_at
+
+        drv = drive_at(mech, t)
+        out.append(jnp.sum(drv.n * _driven_vectors(mech, pts), axis=1) - drv.c)
     if not out:
         return jnp.zeros((0,), dtype=pts.dtype)
     return jnp.concatenate(out)
@@ -159,9 +171,9 @@ def _state(mech: Mechanism, x, xd=None):
     return w, pts, points(mech.topo, w, vel_all)
 
 
-def constraints(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " C"]:
-    """All constraint residuals at ``x`` (zero on the constraint manifold)."""
-    return row_residuals(mech, _state(mech, x)[1])
+def constraints(mech: Mechanism, x: Float[Array, " 3F"], *, t=0.0) -> Float[Array, " C"]:
+    """All constraint residuals at ``x`` (zero on the constraint manifold); ``t`` matters only for driving rows."""
+    return row_residuals(mech, _state(mech, x)[1], t)
 
 
 def constraint_labels(mech: Mechanism) -> list[str]:
@@ -169,21 +181,42 @@ def constraint_labels(mech: Mechanism) -> list[str]:
     return mech.topo.row_labels()
 
 
-def constraint_jacobian(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, "C 3F"]:
+def constraint_jacobian(mech: Mechanism, x: Float[Array, " 3F"], *, t=0.0) -> Float[Array, "C 3F"]:
     """``J = d constraints / dx`` in closed form, ``(C, 3F)``."""
     topo = mech.topo
     w, pts = _state(mech, x)
-    g_dot, g_lin = row_incidence(topo, point_free_weights(topo, w))
+    wk = point_free_weights(topo, w)
+    g_dot, g_lin = row_incidence(topo, wk)
     blocks = row_blocks(topo, pts) if len(topo.dot) else jnp.zeros((0, 4, 3))
     j = jacobian_from_blocks(blocks, g_dot, linear_jacobian(topo, g_lin))
+    if len(topo.drive):
+        from ._algebra import drive_at
+
+        dr = topo.drive
+        a, b = np.asarray(dr.a, dtype=int), np.asarray(dr.b, dtype=int)
+        d = wk[a] - jnp.where(jnp.asarray(b < 0)[:, None], 0.0, wk[np.where(b < 0, 0, b)])
+        j = jnp.concatenate([j, d[:, :, None] * drive_at(mech, t).n[:, None, :]], axis=0)
     return j.reshape(j.shape[0], -1)
 
 
-def velocity_constraints(mech: Mechanism, x, xd) -> Float[Array, " C"]:
-    """``J(x) xd``: zero for admissible velocities."""
-    return jax.jvp(lambda y: constraints(mech, y), (x,), (xd,))[1]
+def velocity_constraints(mech: Mechanism, x, xd, *, t=0.0) -> Float[Array, " C"]:
+    """``d/dt constraints = J(x, t) xd - nu(x, t)``: zero for admissible velocities (``nu`` is zero except on
+    driving rows)."""
+    t = jnp.asarray(t, dtype=x.dtype)
+    return jax.jvp(lambda y, s: constraints(mech, y, t=s), (x, t), (xd, jnp.ones_like(t)))[1]
 
 
-def constraint_gamma(mech: Mechanism, x, xd) -> Float[Array, " C"]:
-    """Right-hand side of ``J xdd = gamma``: ``gamma = -xd^T (d^2 constraints / dx^2) xd`` (closed form)."""
-    return row_gamma(mech.topo, _state(mech, x, xd)[2])
+def constraint_gamma(mech: Mechanism, x, xd, *, t=0.0) -> Float[Array, " C"]:
+    """Right-hand side of ``J xdd = gamma``: ``gamma = -(d^2/dt^2 constraints)`` at zero acceleration (closed
+    form)."""
+    g = row_gamma(mech.topo, _state(mech, x, xd)[2])
+    if not len(mech.topo.drive):
+        return g
+    from ._algebra import drive_at
+
+    drv = drive_at(mech, t)
+    _, pts, vel = _state(mech, x, xd)
+    u, du = _driven_vectors(mech, pts), _driven_vectors(mech, vel)
+    n_fixed = len(mech.topo.dot) + len(mech.topo.linear)
+    tail = drv.cdd - 2.0 * jnp.sum(drv.nd * du, axis=1) - jnp.sum(drv.ndd * u, axis=1)
+    return jnp.concatenate([g[:n_fixed], tail])

@@ -29,8 +29,8 @@ import jax.numpy as jnp
 import jax.scipy.linalg  # noqa: F401
 from jaxtyping import Array, Float
 
-from ._algebra import (Prepared, apply_j, apply_minv_jt, factor_schur, gamma, jacobian, prepare, residual, rows, schur,
-                       solve_schur)
+from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, gamma, jacobian, prepare, residual,
+                       rows, schur, solve_schur, velocity_target)
 from ._algebra import LSQ_REFINE, LSQ_RTOL
 from ._algebra import scalar_mass_matrix  # noqa: F401  (re-exported for Mechanism.scalar_mass_matrix)
 from .forces import generalized_point_forces, point_forces, potential_energy, torque_forces
@@ -58,11 +58,11 @@ def _forces(mech: Mechanism, prep: Prepared, t, x, xd):
 
 
 def _solve(mech: Mechanism, prep: Prepared, t, x, xd, baumgarte: float):
-    r = rows(prep, x, xd)
+    r = rows(prep, x, xd, drive_at(mech, t))
     g = gamma(prep, r)
     if baumgarte:
-        g = g - 2.0 * baumgarte * apply_j(prep, r, xd.reshape(-1, 3)) - baumgarte**2 * residual(
-            prep, mech.dot_kappa, r, x)
+        g = g - 2.0 * baumgarte * (apply_j(prep, r, xd.reshape(-1, 3)) - velocity_target(prep, r)) - \
+            baumgarte**2 * residual(prep, mech.dot_kappa, r, x)
     f_pts, q_torque = _forces(mech, prep, t, x, xd)
     if mech.topo.saddle_point:
         return _solve_kkt(prep, r, g, f_pts, q_torque, mech.topo.least_squares)
@@ -131,8 +131,9 @@ def total_energy(mech: Mechanism, x, xd, *, props: Prepared | None = None) -> Fl
     return kinetic_energy(mech, xd, props=props) + potential_energy(mech, x)
 
 
-def residuals(mech: Mechanism, x, xd) -> tuple[Array, Array]:
-    """Position- and velocity-level constraint residuals ``(Phi(x), J xd)``."""
+def residuals(mech: Mechanism, x, xd, t=0.0) -> tuple[Array, Array]:
+    """Position- and velocity-level constraint residuals ``(Phi(x, t), J xd - nu(t))`` (``t`` matters only for
+    driving constraints)."""
     from .constraints import constraints, velocity_constraints
 
-    return constraints(mech, x), velocity_constraints(mech, x, xd)
+    return constraints(mech, x, t=t), velocity_constraints(mech, x, xd, t=t)

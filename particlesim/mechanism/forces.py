@@ -116,14 +116,68 @@ def _rotational_forces(mech: Mechanism, x, xd):
     return -pull(tau)[0]
 
 
+def body_load_wrenches(mech: Mechanism, ap, t, x, xd) -> dict:
+    """Call a body load (``ap.kind == 'load'``) on its bodies' named states; returns ``{body: (force, torque)}``
+    checked (a force at the centre of mass and a torque, 3 numbers each, world frame)."""
+    from ..errors import ModelError
+    from .model import BodyState
+    from .outputs import body_poses, body_velocities
+
+    names = [mech.topo.body_names[b] for b in ap.target]
+    idx = np.asarray(ap.target, dtype=int)
+    rot, org = body_poses(mech, x)
+    com = jnp.einsum("bij,bj->bi", rot, mech.body_com) + org
+    v_com, omega = body_velocities(mech, x, xd)
+    state = BodyState(position=dict(zip(names, com[idx])), rotation=dict(zip(names, rot[idx])),
+                      velocity=dict(zip(names, v_com[idx])), angular_velocity=dict(zip(names, omega[idx])))
+    out = ap.fn(t, state)
+    if not isinstance(out, dict) or any(k not in names for k in out):
+        raise ModelError(f"body load '{ap.name}': must return a dict {{body: (force, torque)}} over its bodies "
+                         f"{names}, got {type(out).__name__}" + (f" with keys {list(out)}" if isinstance(out, dict)
+                                                                  else ""))
+    checked = {}
+    for k, (force, torque) in out.items():
+        force, torque = jnp.asarray(force, dtype=x.dtype), jnp.asarray(torque, dtype=x.dtype)
+        if force.shape != (3,) or torque.shape != (3,):
+            raise ModelError(f"body load '{ap.name}': body '{k}' needs a force and a torque of 3 numbers each, got "
+                             f"shapes {force.shape} and {torque.shape}")
+        checked[k] = (force, torque)
+    return checked
+
+
+def body_load_forces(mech: Mechanism, ap, t, x, xd):
+    """Generalised forces ``(3F,)`` of one body load: virtual power ``F . v_com + tau . omega`` of every body's
+    wrench (:func:`body_load_wrenches`) over the free coordinates."""
+    from .outputs import body_velocities
+
+    names = [mech.topo.body_names[b] for b in ap.target]
+    idx = np.asarray(ap.target, dtype=int)
+    wrenches = body_load_wrenches(mech, ap, t, x, xd)
+    f = jnp.zeros((len(names), 3), dtype=x.dtype)
+    tau = jnp.zeros((len(names), 3), dtype=x.dtype)
+    for k, (force, torque) in wrenches.items():
+        i = names.index(k)
+        f, tau = f.at[i].set(force), tau.at[i].set(torque)
+
+    def vel(v):
+        lin, ang = body_velocities(mech, x, v)
+        return lin[idx], ang[idx]
+
+    _, pull = jax.vjp(vel, xd)
+    return pull((f, tau))[0]
+
+
 def torque_forces(mech: Mechanism, t, x, xd):
-    """Generalised forces ``(3F,)`` of the applied torques (virtual power ``tau . omega``) and the rotational
-    spring-dampers; ``None`` if none."""
-    torques = [ap for ap in mech.applied if ap.kind == "torque"]
+    """Generalised forces ``(3F,)`` of the applied torques (virtual power ``tau . omega``), the body loads and the
+    rotational spring-dampers; ``None`` if none."""
+    torques = [ap for ap in mech.applied if ap.kind in ("torque", "load")]
     if not torques and not mech.topo.rotational_names:
         return None
     q = jnp.zeros_like(x) if not mech.topo.rotational_names else _rotational_forces(mech, x, xd)
     for ap in torques:
+        if ap.kind == "load":
+            q = q + body_load_forces(mech, ap, t, x, xd)
+            continue
         _, pull = jax.vjp(lambda v, b=ap.target: body_angular_velocity(mech, b, x, v), xd)
         q = q + pull(ap.fn(t, x, xd))[0]
     return q

@@ -24,13 +24,14 @@ from __future__ import annotations
 import diffrax
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .. import _ode
 from .._ode import ADJOINTS, Solution
 from ..errors import ModelError
 from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_project
-from ._algebra import (Prepared, apply_j, apply_minv_jt, factor_schur, jacobian, prepare, residual, rows,
-                       schur, solve_schur)
+from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian, prepare, residual, rows,
+                       schur, solve_schur, velocity_target)
 from .dynamics import _solve
 from .model import Mechanism
 
@@ -40,39 +41,44 @@ _POSITION_ITERATIONS = 2
 _VELOCITY_PASSES = 2
 
 
-def _project_euclid(mech: Mechanism, prep: Prepared, x, xd):
+def _project_euclid(mech: Mechanism, prep: Prepared, x, xd, drive):
     """Minimum-norm (``J J^T``) projection for mechanisms with a singular mass matrix (LU, 3 Gauss–Newton steps)."""
     lsq = mech.topo.least_squares
     for _ in range(3):
-        r = rows(prep, x)
+        r = rows(prep, x, drive=drive)
         j = jacobian(prep, r).reshape(mech.n_constraints, -1)
         x = x - j.T @ solve_schur(factor_schur(j @ j.T, lsq), residual(prep, mech.dot_kappa, r, x))
-    j = jacobian(prep, rows(prep, x)).reshape(mech.n_constraints, -1)
-    return x, xd - j.T @ solve_schur(factor_schur(j @ j.T, lsq), j @ xd)
+    r = rows(prep, x, drive=drive)
+    j = jacobian(prep, r).reshape(mech.n_constraints, -1)
+    return x, xd - j.T @ solve_schur(factor_schur(j @ j.T, lsq), j @ xd - velocity_target(prep, r))
 
 
-def project_prepared(mech: Mechanism, prep: Prepared, x, xd):
-    """Project ``(x, xd)`` onto ``Phi = 0`` and ``J xd = 0`` (module docstring); ``prep`` from :func:`prepare`."""
+def project_prepared(mech: Mechanism, prep: Prepared, x, xd, t=0.0):
+    """Project ``(x, xd)`` onto ``Phi(x, t) = 0`` and ``J xd = nu(t)`` (module docstring; ``t`` matters only for
+    driving constraints); ``prep`` from :func:`prepare`."""
     if mech.n_constraints == 0:
         return x, xd
+    drive = drive_at(mech, t)
     if mech.topo.saddle_point:
-        return _project_euclid(mech, prep, x, xd)
-    r0 = r = rows(prep, x)
+        return _project_euclid(mech, prep, x, xd, drive)
+    r0 = r = rows(prep, x, drive=drive)
     # One factorisation at the stepped state serves every pass below (least squares: minimum-norm corrections).
     factor = factor_schur(schur(prep, r0), mech.topo.least_squares)
     for _ in range(_POSITION_ITERATIONS):
         lam = solve_schur(factor, residual(prep, mech.dot_kappa, r, x))
         x = x - apply_minv_jt(prep, r0, lam).reshape(-1)
-        r = rows(prep, x)
+        r = rows(prep, x, drive=drive)
+    nu = velocity_target(prep, r)
     for _ in range(_VELOCITY_PASSES):
-        lam = solve_schur(factor, apply_j(prep, r, xd.reshape(-1, 3)))
+        lam = solve_schur(factor, apply_j(prep, r, xd.reshape(-1, 3)) - nu)
         xd = xd - apply_minv_jt(prep, r0, lam).reshape(-1)
     return x, xd
 
 
-def project(mech: Mechanism, x, xd, *, props: Prepared | None = None):
-    """Project ``(x, xd)`` onto ``Phi = 0`` and ``J xd = 0`` (mass-orthogonal corrections)."""
-    return project_prepared(mech, prepare(mech) if props is None else props, x, xd)
+def project(mech: Mechanism, x, xd, *, t=0.0, props: Prepared | None = None):
+    """Project ``(x, xd)`` onto ``Phi(x, t) = 0`` and ``J xd = nu(t)`` (mass-orthogonal corrections; ``t`` matters
+    only for driving constraints)."""
+    return project_prepared(mech, prepare(mech) if props is None else props, x, xd, t)
 
 
 def parameter_groups(mech: Mechanism) -> list:
@@ -93,6 +99,10 @@ def parameter_groups(mech: Mechanism) -> list:
                            getattr(mech, f"{prefix.split()[0]}_{f}")))
     for ap in mech.applied:
         groups += [(f"applied '{ap.name}' {lab}", leaf) for lab, leaf in _ode.leaf_groups(ap.fn)]
+    for name, fn in zip(topo.drive.names, mech.drive_fns):
+        groups += [(f"driver '{name}' {lab}", leaf) for lab, leaf in _ode.leaf_groups(fn)]
+    if len(topo.drive):
+        groups.append(([f"driver '{n}' offset" for n in topo.drive.names], mech.drive_offset))
     return [(lab, arr) for lab, arr in groups if arr.size]
 
 
@@ -122,18 +132,45 @@ def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
             return xd, chain_accelerations(m, plan, t, x, xd, mass_blocks=cb)
         return xd, _solve(m, p, t, x, xd, baumgarte)[0]
 
-    def projection(y, args):
+    def projection(t, y, args):
         m, p, cb = unpack(args)
         if plan is not None:
             return chain_project(m, plan, *y, mass_blocks=cb)
-        return project_prepared(m, p, *y)
+        return project_prepared(m, p, *y, t)
 
     ts_, (xs, xds), steps, rejected, result, ok = _ode.integrate(
         field, (x0, xd0), [leaves[i] for i in arrays], t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
         cfg=cfg, projection=projection if stabilise else None)
     if stabilise:
-        xs, xds = jax.lax.map(lambda ab: projection(ab, [leaves[i] for i in arrays]), (xs, xds))
+        xs, xds = jax.lax.map(lambda tab: projection(tab[0], tab[1:], [leaves[i] for i in arrays]), (ts_, xs, xds))
     return Solution(ts=ts_, q=xs, qd=xds, steps=steps, rejected=rejected, status=result, ok=ok)
+
+
+#: A driven mechanism's initial state must meet its driving rows to this fraction of the mechanism's size (and
+#: speed): a start that does not is a modelling error (e.g. the crank's speed left out of ``xd0``), not drift.
+DRIVEN_START_RTOL = 1e-6
+
+
+def _check_driven_start(mech: Mechanism, x0, xd0, t0) -> None:
+    """Refuse an initial state that violates the driving constraints at ``t0`` (concrete values only)."""
+    from .constraints import constraints, velocity_constraints
+
+    if not all(_ode._concrete(v) for v in (x0, xd0, t0)) or any(
+            isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(mech)):
+        return
+    n = mech.n_constraints - len(mech.topo.drive)
+    pos = np.asarray(x0).reshape(-1, 3)
+    size = max(float(np.ptp(pos, axis=0).max()), 1.0)
+    speed = max(float(np.abs(np.asarray(xd0)).max()), 1.0)
+    res = np.asarray(constraints(mech, x0, t=float(t0)))[n:]
+    vel = np.asarray(velocity_constraints(mech, x0, xd0, t=float(t0)))[n:]
+    labels = mech.topo.drive.labels
+    for what, r, tol in (("position", res, DRIVEN_START_RTOL * size), ("velocity", vel, DRIVEN_START_RTOL * speed)):
+        bad = np.flatnonzero(np.abs(r) > tol)
+        if bad.size:
+            raise ValueError(f"simulate_mechanism: the initial state violates {labels[bad[0]]} at t0 = {float(t0)} "
+                             f"({what} residual {float(r[bad[0]]):.3g}); start it consistently, e.g. "
+                             "x0, xd0 = project(mech, x0, xd0, t=t0)")
 
 
 def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver: str = "tsit5",
@@ -179,5 +216,7 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
     _ode.check_state((x0, xd0), ("x0", "xd0"))
     t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
     _ode.check_finite("simulate_mechanism", parameter_groups(mech))  # eager, for concrete values
+    if len(mech.topo.drive):
+        _check_driven_start(mech, x0, xd0, t0)
     return _simulate(mech, x0, xd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg, bool(stabilise),
                      float(baumgarte), solve)

@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-__all__ = ["Mechanism", "Topology", "DotRows", "LinearRows", "AppliedSpec"]
+__all__ = ["Mechanism", "Topology", "DotRows", "LinearRows", "DriveRows", "AppliedSpec", "BodyState"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +79,34 @@ class LinearRows:
         return np.stack([self.a, self.b], axis=1).reshape(-1, 2).astype(int)
 
 
+@dataclasses.dataclass(frozen=True)
+class DriveRows:
+    """Driving constraints ``n(t) . (p_a - p_b) - c(t)`` that prescribe a motion over time (kinematic analysis,
+    driven inputs); point ``b = -1`` stands for the world origin.
+
+    * position drivers (``spin = 0``): ``n = axis`` (unit), ``c(t) = offset + f(t)``: point ``a`` moves ``f(t)``
+      along ``axis`` (relative to ``b``) from its assembly position;
+    * angle drivers (``spin = k``, unit): ``n(t) = Rot(k, f(t)) axis`` with ``axis = (k x u0) / |u0_perp|^2`` for
+      the body vector ``u0 = p_a - p_b`` at assembly, ``c = 0``: the body turns by ``f(t)`` about ``k`` from its
+      assembly pose (the row is scaled so that its multiplier is the driving torque).
+    """
+
+    a: tuple[int, ...]
+    b: tuple[int, ...]
+    axis: tuple[tuple[float, float, float], ...]
+    spin: tuple[tuple[float, float, float], ...]
+    labels: tuple[str, ...]
+    names: tuple[str, ...] = ()
+
+    def __len__(self) -> int:
+        return len(self.a)
+
+    @property
+    def angle(self) -> np.ndarray:
+        """Boolean mask of the angle drivers."""
+        return np.asarray([any(v != 0.0 for v in k) for k in self.spin], dtype=bool)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Topology:
     """Everything static about a mechanism (hashable; equal topologies share compiled code). The hash is computed
@@ -104,6 +132,7 @@ class Topology:
     planar: bool = False  # built as a planar mechanism (x-y plane, every free particle held in it)
     rotational_names: tuple[str, ...] = ()  # rotational spring-dampers (planar mechanisms)
     rotational_bodies: tuple[tuple[int, int], ...] = ()  # (body a, body b); -1: the ground
+    drive: DriveRows = DriveRows((), (), (), (), (), ())  # driving constraints (rows after the linear rows)
 
     def _key(self) -> tuple:
         return tuple(getattr(self, f.name) for f in dataclasses.fields(self))
@@ -145,19 +174,32 @@ class Topology:
         return col
 
     def row_labels(self) -> list[str]:
-        return list(self.dot.labels) + list(self.linear.labels)
+        return list(self.dot.labels) + list(self.linear.labels) + list(self.drive.labels)
 
 
 class AppliedSpec(eqx.Module):
-    """An applied force ``fn(t, x, xd) -> (3,)`` at a point (``kind='force'``) or torque on a body (``'torque'``).
+    """An applied force ``fn(t, x, xd) -> (3,)`` at a point (``kind='force'``), a torque on a body (``'torque'``),
+    or loads on named bodies from their named states (``'load'``: ``fn(t, BodyState) -> {body: (force, torque)}``,
+    ``target`` the tuple of body indices).
 
     ``fn`` is static: the same function object reuses compiled code; give it parameters by making it an
     ``equinox.Module`` (its array fields are then traced)."""
 
     name: str = eqx.field(static=True)
     kind: str = eqx.field(static=True)
-    target: int = eqx.field(static=True)  # point index (force) or body index (torque)
+    target: int | tuple = eqx.field(static=True)  # point index (force), body index (torque), body indices (load)
     fn: Callable
+
+
+class BodyState(eqx.Module):
+    """The states of named bodies handed to a body-load function (:meth:`~.builder.MechanismBuilder.body_load`),
+    world frame, each a dict keyed by body name: ``position`` (centre of mass, (3,)), ``rotation`` ((3, 3), body to
+    world), ``velocity`` (of the centre of mass) and ``angular_velocity`` ((3,); a rod has none about its line)."""
+
+    position: dict
+    rotation: dict
+    velocity: dict
+    angular_velocity: dict
 
 
 class Mechanism(eqx.Module):
@@ -185,6 +227,9 @@ class Mechanism(eqx.Module):
     applied: tuple  # AppliedSpec
     # --- static topology ---
     topo: Topology = eqx.field(static=True)
+    # --- driving constraints (rows ``n(t).(p_a - p_b) - c(t)``, :class:`DriveRows`) ---
+    drive_offset: Float[Array, " K"] = eqx.field(default_factory=lambda: jnp.zeros(0))
+    drive_fns: tuple = ()  # f(t) -> scalar per driver (a function, or an equinox Module whose arrays are traced)
 
     # ---- sizes and names ----
     @property
@@ -209,7 +254,7 @@ class Mechanism(eqx.Module):
 
     @property
     def n_constraints(self) -> int:
-        return len(self.topo.dot) + len(self.topo.linear)
+        return len(self.topo.dot) + len(self.topo.linear) + len(self.topo.drive)
 
     def index(self, particle: str) -> int:
         try:

@@ -20,7 +20,7 @@ from ..spatial import unskew
 from .model import Mechanism
 
 __all__ = ["body_poses", "body_com_positions", "body_velocities", "body_angles", "cut_joint_forces",
-           "body_reactions", "joint_reaction"]
+           "driver_efforts", "body_reactions", "joint_reaction"]
 
 
 def _check_state(mech: Mechanism, v, what: str) -> None:
@@ -55,9 +55,13 @@ def _rod_rotation(a, b):
 def body_poses(mech: Mechanism, x: Float[Array, " 3F"]) -> tuple[Float[Array, "B 3 3"], Float[Array, "B 3"]]:
     """``(R, origin)`` of every body at state ``x``: ``p_world = R p_body + origin`` (body order of
     ``mech.topo.body_names``; :meth:`Mechanism.body_index` gives a body's row)."""
-    topo = mech.topo
     _check_state(mech, x, "x")
-    r = mech.all_positions(x)
+    return _poses_from_positions(mech, mech.all_positions(x))
+
+
+def _poses_from_positions(mech: Mechanism, r: Float[Array, "P 3"]):
+    """:func:`body_poses` from the positions of all particles."""
+    topo = mech.topo
     n_b = len(topo.body_names)
     rot = jnp.zeros((n_b, 3, 3), r.dtype)
     org = jnp.zeros((n_b, 3), r.dtype)
@@ -103,6 +107,27 @@ def body_velocities(mech: Mechanism, x: Float[Array, " 3F"], xd: Float[Array, " 
     return v, omega
 
 
+def primary_load_forces(mech: Mechanism, b: int, x, force, torque) -> Float[Array, "k 3"]:
+    """Forces on all of body ``b``'s primaries (ground ones too) equivalent to ``force`` at its centre of mass plus
+    ``torque``: by virtual power, ``f_i = (d v_com / d v_i)^T F + (d omega / d v_i)^T tau``, with the body's
+    velocities as functions of its primaries' velocities (so the forces sum to ``F`` and their moment is the
+    load's)."""
+    r = mech.all_positions(x)
+    idx = np.asarray(mech.topo.body_particles[b], dtype=int)
+
+    def vel(v_prim):
+        v_all = jnp.zeros_like(r).at[idx].set(v_prim)
+        (rot, org), (rot_d, org_d) = jax.jvp(lambda rr: _poses_from_positions(mech, rr), (r,), (v_all,))
+        omega = unskew(rot_d[b] @ rot[b].T)
+        if len(idx) == 2:
+            u = _unit(r[idx[1]] - r[idx[0]])
+            omega = omega - (omega @ u) * u
+        return rot_d[b] @ mech.body_com[b] + org_d[b], omega
+
+    _, pull = jax.vjp(vel, jnp.zeros((len(idx), 3), dtype=r.dtype))
+    return pull((jnp.asarray(force, dtype=r.dtype), jnp.asarray(torque, dtype=r.dtype)))[0]
+
+
 def body_angles(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " B"]:
     """Rotation angle about z of every body of a planar mechanism from its given (assembly) orientation, in
     ``(-pi, pi]`` (wrapped; ``numpy.unwrap`` a trajectory), counter-clockwise positive; from the direction between
@@ -142,6 +167,23 @@ def cut_joint_forces(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array
         f = out.get(name, jnp.zeros(3, dtype=x.dtype))
         out[name] = f - lam_lin[r] * jnp.asarray(axis, dtype=x.dtype)
     return out
+
+
+def driver_efforts(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"]) -> dict[str, Array]:
+    """What every driver must supply at state ``(t, x, xd)`` to impose its motion: the torque (N m) about its axis
+    of an angle driver, the force (N) along its axis of a position driver (positive: doing positive work when the
+    driven coordinate increases), by name. From the multipliers: a driving row is scaled so that its gradient along
+    the driven coordinate is one, so its effort is ``-lam``."""
+    from .dynamics import accelerations_and_multipliers
+
+    _check_state(mech, x, "x")
+    _check_state(mech, xd, "xd")
+    dr = mech.topo.drive
+    if not len(dr):
+        return {}
+    _, lam = accelerations_and_multipliers(mech, t, x, xd)
+    tail = -lam[mech.n_constraints - len(dr):]
+    return {name: tail[i] for i, name in enumerate(dr.names)}
 
 
 def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"]) -> Float[Array, "B 4 3"]:
@@ -193,15 +235,15 @@ def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, 
             mine = [q for q, owner in enumerate(topo.point_body) if owner == bi]
             if mine:
                 r_b = r_b - jnp.einsum("qt,qj->tj", w[np.asarray(mine)][:, :k], f_pts[np.asarray(mine)])
-        for ap in mech.applied:
+        for ap in mech.applied:  # loads and torques on the body, on all its primaries (ground ones too)
+            if ap.kind == "load" and bi in ap.target:
+                from .forces import body_load_wrenches
+
+                wrench = body_load_wrenches(mech, ap, t, x, xd).get(topo.body_names[bi])
+                if wrench is not None:
+                    r_b = r_b - primary_load_forces(mech, bi, x, *wrench)
             if ap.kind == "torque" and ap.target == bi:
-                def omega(v_all, ap=ap):
-                    return body_angular_velocity(mech, bi, x, v_all)
-                # the torque's generalised force on this body's particles (free ones; ground ones take none)
-                _, pull = jax.vjp(omega, xd)
-                q = pull(ap.fn(t, x, xd))[0].reshape(-1, 3)
-                col = topo.free_column()[idx]
-                r_b = r_b - jnp.where(jnp.asarray(col >= 0)[:, None], q[np.maximum(col, 0)], 0.0)
+                r_b = r_b - primary_load_forces(mech, bi, x, jnp.zeros(3, x.dtype), ap.fn(t, x, xd))
         for r, bodies in owners.items():
             if bi not in bodies:
                 continue
