@@ -195,16 +195,14 @@ def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, 
     accelerations, minus its gravity and the loads on its own points and its torques, plus the forces of its own
     rigid-distance rows (a row shared by two bodies, the axis of a revolute joint, split evenly: the split moves
     equal and opposite forces along the axis between its two particles and leaves every joint's net force and
-    moment unchanged). :func:`joint_reaction` sums them into a joint's force and moment. Mechanisms with
-    rotational spring-dampers are refused (their torques are not yet split by body)."""
+    moment unchanged). :func:`joint_reaction` sums them into a joint's force and moment. Torques (applied, body
+    loads, rotational spring-dampers) act on a body as couples over all its primaries, ground ones included."""
     from ..particles import primary_mass_matrix
     from .constraints import point_weights, points
     from .dynamics import accelerations_and_multipliers
     from .forces import body_angular_velocity, point_forces
 
     topo = mech.topo
-    if topo.rotational_names:
-        raise ModelError("body_reactions: mechanisms with rotational spring-dampers are not supported yet")
     _check_state(mech, x, "x")
     _check_state(mech, xd, "xd")
     xdd, lam = accelerations_and_multipliers(mech, t, x, xd)
@@ -225,6 +223,16 @@ def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, 
     pts = points(topo, w, pos)
     f_pts = point_forces(mech, t, x, xd, pts, points(topo, w, vel))
     out = jnp.zeros((len(topo.body_names), 4, 3), x.dtype)
+    spring_torque = {}  # body -> torque about z of its rotational spring-dampers
+    if topo.rotational_names:
+        from .forces import rotational_angles
+
+        th, th_dot = jax.jvp(lambda y: rotational_angles(mech, y), (x,), (xd,))
+        tau = mech.rotational_stiffness * (th - mech.rotational_free_angle) + mech.rotational_damping * th_dot
+        for r, (ba, bb) in enumerate(topo.rotational_bodies):  # -tau on b, +tau on a (the ground takes its own)
+            spring_torque[bb] = spring_torque.get(bb, 0.0) - tau[r]
+            if ba >= 0:
+                spring_torque[ba] = spring_torque.get(ba, 0.0) + tau[r]
     for bi, prim in enumerate(topo.body_particles):
         k = len(prim)
         idx = np.asarray(prim, dtype=int)
@@ -235,6 +243,9 @@ def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, 
             mine = [q for q, owner in enumerate(topo.point_body) if owner == bi]
             if mine:
                 r_b = r_b - jnp.einsum("qt,qj->tj", w[np.asarray(mine)][:, :k], f_pts[np.asarray(mine)])
+        if bi in spring_torque:
+            z = jnp.zeros((), x.dtype)
+            r_b = r_b - primary_load_forces(mech, bi, x, jnp.zeros(3, x.dtype), jnp.stack([z, z, z + spring_torque[bi]]))
         for ap in mech.applied:  # loads and torques on the body, on all its primaries (ground ones too)
             if ap.kind == "load" and bi in ap.target:
                 from .forces import body_load_wrenches

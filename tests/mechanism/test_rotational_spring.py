@@ -125,12 +125,19 @@ def test_bad_rotational_springs():
         spatial.rotational_spring_damper("u", None, "bar", 1.0, 0.0)
 
 
-def test_body_reactions_refuse_rotational_springs():
-    from particlesim.mechanism import body_reactions
+def test_body_reactions_with_rotational_springs_balance_the_body():
+    """The spring torque is a couple: the pivot takes M a_com - M g (Newton for the bar); the bar's tip, held by
+    nothing, takes no force. (Before, the torque's share at the ground pivot was dropped from the balance.)"""
+    from particlesim.mechanism import accelerations, body_reactions
 
-    mech, x0 = _one()
-    with pytest.raises(ModelError, match="body_reactions: mechanisms with rotational spring-dampers"):
-        body_reactions(mech, 0.0, jnp.asarray(x0), jnp.zeros(len(x0)))
+    mech, _ = _one()
+    x = jnp.asarray([np.cos(0.3), np.sin(0.3), 0.0])  # turned 0.3 rad: the spring pulls back
+    xd = jnp.asarray([-np.sin(0.3), np.cos(0.3), 0.0]) * W0
+    a_tip = np.asarray(accelerations(mech, 0.0, x, xd))
+    r = np.asarray(body_reactions(mech, 0.0, x, xd))[0]
+    assert np.max(np.abs(r[0] - 1.0 * a_tip / 2)) < 1e-12  # no gravity here
+    assert np.max(np.abs(r[1])) < 1e-12
+    assert np.linalg.norm(a_tip) > 1.0  # the spring and the spin act
 
 
 def test_new_rotational_parameters_reuse_the_compiled_rollout():
