@@ -29,7 +29,7 @@ from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, Float
 
 from ..particles import primary_mass_matrix
-from .constraints import linear_blocks, point_free_weights, point_weights, points
+from .constraints import linear_blocks, point_free_weights, point_weights, points, quarter_turn
 from .model import Mechanism
 
 __all__ = ["Prepared", "prepare", "scalar_mass_matrix", "Rows", "rows", "schur", "apply_j", "apply_minv_jt",
@@ -99,6 +99,7 @@ class Prepared(eqx.Module):
     drv_akk: Float[Array, "K K"] | None = None  # drv_d @ minv @ drv_d^T
     drv_adk: Float[Array, "2D K"] | None = None  # d @ minv @ drv_d^T
     drv_blk: Float[Array, "L K 3"] | None = None  # jw_lin contracted with drv_d
+    turn: tuple | None = eqx.field(static=True, default=None)  # turned dot rows (planar lines on rods), or None
 
 
 def prepare(mech: Mechanism) -> Prepared:
@@ -124,7 +125,8 @@ def prepare(mech: Mechanism) -> Prepared:
     e = jnp.asarray(linear_blocks(topo)[:, 0], dtype=w.dtype)  # (L, 3)
     j_lin = (wk[la] - wk[lb])[:, :, None] * e[:, None, :]
     c_lin = jnp.sum(e * (p0[la] - p0[lb]), axis=1)
-    base = dict(w=w, wk=wk, p0=p0, ms=ms, lumped=lumped, qg=qg, d=d, c=c, scale=scale, j_lin=j_lin, c_lin=c_lin)
+    base = dict(w=w, wk=wk, p0=p0, ms=ms, lumped=lumped, qg=qg, d=d, c=c, scale=scale, j_lin=j_lin, c_lin=c_lin,
+                turn=topo.dot.turned)
     dr = topo.drive
     if len(dr):
         da, db = np.asarray(dr.a, dtype=int), np.asarray(dr.b, dtype=int)
@@ -224,15 +226,16 @@ def rows(prep: Prepared, x: Float[Array, " 3F"], xd=None, drive: Drive | None = 
     return Rows(vu, dvu, drive, du, ddu)
 
 
-def _partner(vu: Array) -> Array:
-    """``E = [u; v]``: the vector each half of ``D`` is paired with in the Jacobian."""
+def _partner(vu: Array, turn=None) -> Array:
+    """``E = [u; v]``: the vector each half of ``D`` is paired with in the Jacobian (``[Rz u; Rz^T v]`` on turned
+    rows)."""
     n = vu.shape[0] // 2
-    return jnp.concatenate([vu[n:], vu[:n]], axis=0)
+    return jnp.concatenate([quarter_turn(vu[n:], turn), quarter_turn(vu[:n], turn, -1.0)], axis=0)
 
 
 def residual(prep: Prepared, kappa: Array, r: Rows, x: Array) -> Float[Array, " C"]:
     n = prep.scale.shape[0]
-    dot = prep.scale * jnp.sum(r.vu[:n] * r.vu[n:], axis=1) - kappa
+    dot = prep.scale * jnp.sum(r.vu[:n] * quarter_turn(r.vu[n:], prep.turn), axis=1) - kappa
     lin = jnp.sum(prep.j_lin * x.reshape(1, -1, 3), axis=(1, 2)) + prep.c_lin
     if r.drive is None:
         return jnp.concatenate([dot, lin])
@@ -242,7 +245,7 @@ def residual(prep: Prepared, kappa: Array, r: Rows, x: Array) -> Float[Array, " 
 def gamma(prep: Prepared, r: Rows) -> Float[Array, " C"]:
     """``-d^2 Phi/dt^2`` at zero acceleration: ``-2 s dv . du`` for dot rows, zero for linear rows."""
     n = prep.scale.shape[0]
-    dot = -2.0 * prep.scale * jnp.sum(r.dvu[:n] * r.dvu[n:], axis=1)
+    dot = -2.0 * prep.scale * jnp.sum(r.dvu[:n] * quarter_turn(r.dvu[n:], prep.turn), axis=1)
     lin = jnp.zeros(prep.c_lin.shape, dtype=dot.dtype)
     if r.drive is None:
         return jnp.concatenate([dot, lin])
@@ -262,7 +265,7 @@ def velocity_target(prep: Prepared, r: Rows) -> Float[Array, " C"] | float:
 def schur(prep: Prepared, r: Rows) -> Float[Array, "C C"]:
     """``S = J M^-1 J^T`` from the Gram matrix of ``E`` and the constant ``A`` (module docstring)."""
     n = prep.scale.shape[0]
-    e = _partner(r.vu)
+    e = _partner(r.vu, prep.turn)
     # h[r, q] = sum_{i,j} A[(i, r), (j, q)] E[(i, r)] . E[(j, q)], written as outer products of the three
     # coordinates: one elementwise kernel (a dot over 3 plus a block reduction costs several, some of them slow).
     eb = (e[:n], e[n:])
@@ -289,7 +292,7 @@ def apply_j(prep: Prepared, r: Rows, y: Float[Array, "F 3"]) -> Float[Array, " C
     """``J y`` for ``y`` (F, 3)."""
     n = prep.scale.shape[0]
     dy = _mm(prep.d, y)
-    dot = prep.scale * jnp.sum((_partner(r.vu) * dy).reshape(2, n, 3), axis=(0, 2))
+    dot = prep.scale * jnp.sum((_partner(r.vu, prep.turn) * dy).reshape(2, n, 3), axis=(0, 2))
     out = [dot, jnp.sum(prep.j_lin * y[None], axis=(1, 2))]
     if r.drive is not None:
         out.append(jnp.sum(_mm(prep.drv_d, y) * r.drive.n, axis=1))
@@ -299,7 +302,7 @@ def apply_j(prep: Prepared, r: Rows, y: Float[Array, "F 3"]) -> Float[Array, " C
 def apply_minv_jt(prep: Prepared, r: Rows, lam: Float[Array, " C"]) -> Float[Array, "F 3"]:
     """``M^-1 J^T lam`` as (F, 3)."""
     n = prep.scale.shape[0]
-    ls = jnp.tile(lam[:n] * prep.scale, 2)[:, None] * _partner(r.vu)
+    ls = jnp.tile(lam[:n] * prep.scale, 2)[:, None] * _partner(r.vu, prep.turn)
     nl = prep.c_lin.shape[0]
     out = jnp.sum(prep.dw[:, :, None] * ls[:, None, :], axis=0) + jnp.sum(prep.jw_lin * lam[n:n + nl, None, None],
                                                                           axis=0)
@@ -311,7 +314,7 @@ def apply_minv_jt(prep: Prepared, r: Rows, lam: Float[Array, " C"]) -> Float[Arr
 def jacobian(prep: Prepared, r: Rows) -> Float[Array, "C F 3"]:
     """The dense Jacobian ``(C, F, 3)`` (for the saddle-point solve and the public API)."""
     n = prep.scale.shape[0]
-    e = _partner(r.vu)
+    e = _partner(r.vu, prep.turn)
     j_dot = (prep.d[:, :, None] * e[:, None, :]).reshape(2, n, prep.d.shape[1], 3).sum(axis=0)
     out = [prep.scale[:, None, None] * j_dot, prep.j_lin]
     if r.drive is not None:

@@ -181,14 +181,19 @@ class MechanismBuilder:
         """Close a loop: particles/points ``a`` and ``b`` (on different branches) coincide, ``r_a = r_b``."""
         self._joints.append(("coincide", (a, b), name or f"cut joint {a}={b}", None))
 
-    def on_line(self, particle: str, origin: str, direction: Sequence[str], ref: str, *,
+    def on_line(self, particle: str, origin: str, direction: Sequence[str], ref: Optional[str] = None, *,
                 name: Optional[str] = None) -> None:
         """Keep ``particle`` on the line through point ``origin`` along ``direction = (d0, d1)``; ``origin``,
         ``d0``, ``d1`` and ``ref`` (off the line) are points of one body (or the ground). With a shared particle
-        at ``origin`` this makes a revolute joint whose second axis particle belongs to one body only."""
+        at ``origin`` this makes a revolute joint whose second axis particle belongs to one body only; with a
+        particle of another body it is a pin in a slot (revolute-translational joint). In a planar mechanism
+        ``ref`` is not needed (the line's normal lies in the plane), so a rod can carry the slot."""
         if len(direction) != 2:
             raise ModelError(f"on_line {name or particle}: direction needs two points")
-        self._joints.append(("on_line", (particle, origin, *direction, ref), name or f"{particle} on axis", None))
+        if ref is None and not self.planar:
+            raise ModelError(f"on_line {name or particle}: a spatial line needs a reference point off it (ref)")
+        names = (particle, origin, *direction) + (() if ref is None else (ref,))
+        self._joints.append(("on_line", names, name or f"{particle} on axis", None))
 
     def prismatic(self, axis_a: Sequence[str], axis_b: Sequence[str], *, name: Optional[str] = None) -> None:
         """Prismatic joint: ``axis_a = (a0, a1, a2)`` are particles/points of body A (or ground) with a0, a1 on the
@@ -523,13 +528,20 @@ class _Build:
             world = [self.where(n, label)[0] for n in pnames]
             dirs, host, ell = (), None, None
             if kind == "on_line":
-                _, o, d0, d1, ref = world
+                o, d0, d1 = world[1:4]
                 u = d1 - d0
                 ell = float(np.linalg.norm(u))
-                w = (ref - d0) - ((ref - d0) @ u) / (u @ u) * u if ell > 0 else u
-                if ell == 0 or np.linalg.norm(w) <= 1e-9 * ell:
-                    raise ModelError(f"{label}: reference point '{pnames[4]}' lies on the line")
-                n1 = _unit(w)
+                if ell == 0:
+                    raise ModelError(f"{label}: the line's direction points '{pnames[2]}' and '{pnames[3]}' "
+                                     "coincide (a slot of zero length has no direction)")
+                if self.mb.planar:
+                    n1 = _unit(np.cross((0.0, 0.0, 1.0), u))
+                else:
+                    ref = world[4]
+                    w = (ref - d0) - ((ref - d0) @ u) / (u @ u) * u
+                    if np.linalg.norm(w) <= 1e-9 * ell:
+                        raise ModelError(f"{label}: reference point '{pnames[4]}' lies on the line")
+                    n1 = _unit(w)
                 host = self.host(pnames[1:], label)
                 dirs = (n1, np.cross(u / ell, n1))
             elif kind == "cylindrical":
@@ -575,6 +587,8 @@ class _Build:
             origin = world[1] if kind == "on_line" else (
                 world[0] if kind in ("prismatic", "prismatic2d", "cylindrical") else None)
             names = []
+            if self.mb.planar and kind in ("on_line", "prismatic2d"):
+                dirs = ()  # turned rows: the line's in-plane normal is a quarter turn of its direction
             if host == -1:  # a ground-side direction: a hidden ground particle
                 for j, d in enumerate(dirs):
                     nm = f"{label} / direction {j + 1}"
@@ -758,13 +772,15 @@ class _Build:
             # rows s (N - O).(p - q) with N - O = ell * (unit direction fixed in the host)
             # In a planar mechanism n1 is the in-plane normal of the line and the out-of-plane rows are left out
             # (the particles are held in the plane; a slider with both axis points on the line cannot turn).
-            if kind == "on_line":
-                for j, c in enumerate(("n1", "n2")[:1 if planar else 2]):
+            if kind == "on_line" and planar:  # (p - o) . Rz (d1 - d0) / ell
+                self.dot.append((ks[0], ks[1], ks[3], ks[2], 1.0 / ell, 0.0, f"{label} (n1)", True))
+            elif kind == "on_line":
+                for j, c in enumerate(("n1", "n2")):
                     self.dot.append((n[j], ks[1], ks[0], ks[1], 1.0 / ell, 0.0, f"{label} ({c})"))
-            elif kind == "prismatic2d":
+            elif kind == "prismatic2d":  # (p - a0) . Rz (a1 - a0) / ell for both slider points
                 a0 = ks[0]
                 for p, tag in ((ks[2], "axis 1"), (ks[3], "axis 2")):
-                    self.dot.append((n[0], a0, p, a0, 1.0 / ell, 0.0, f"{label} ({tag})"))
+                    self.dot.append((p, a0, ks[1], a0, 1.0 / ell, 0.0, f"{label} ({tag})", True))
             elif kind == "cylindrical":
                 a0, b0, b1 = ks[0], ks[3], ks[4]
                 for p, tag in ((b0, "axis 1"), (b1, "axis 2")):
@@ -865,7 +881,9 @@ class _Build:
             point_body=tuple(self.point_body),
             dot=DotRows(a=tuple(r[0] for r in self.dot), b=tuple(r[1] for r in self.dot),
                         c=tuple(r[2] for r in self.dot), d=tuple(r[3] for r in self.dot),
-                        scale=tuple(float(r[4]) for r in self.dot), labels=tuple(r[6] for r in self.dot)),
+                        scale=tuple(float(r[4]) for r in self.dot), labels=tuple(r[6] for r in self.dot),
+                        turn=tuple(bool(r[7]) if len(r) > 7 else False for r in self.dot)
+                        if any(len(r) > 7 and r[7] for r in self.dot) else ()),
             linear=LinearRows(a=tuple(r[0] for r in self.lin), b=tuple(r[1] for r in self.lin),
                               axis=tuple(r[2] for r in self.lin), labels=tuple(r[3] for r in self.lin)),
             spring_names=tuple(s[0] for s in springs), spring_points=tuple(s[1] for s in springs),
@@ -933,8 +951,14 @@ def _np_rows(topo: Topology, kappa: np.ndarray, pts: np.ndarray, wk: np.ndarray,
         a, b, c, e = (np.asarray(v, dtype=int) for v in (d.a, d.b, d.c, d.d))
         s = np.asarray(d.scale)
         v, u = pts[a] - pts[b], pts[c] - pts[e]
+        if d.turned is not None:  # v . Rz u; d/du is Rz^T v
+            t = np.asarray(d.turned, dtype=bool)[:, None]
+            u = np.where(t, np.stack([-u[:, 1], u[:, 0], 0 * u[:, 0]], axis=1), u)
+            v_c = np.where(t, np.stack([v[:, 1], -v[:, 0], 0 * v[:, 0]], axis=1), v)
+        else:
+            v_c = v
         res.append(s * np.sum(v * u, axis=1) - kappa)
-        blocks = np.stack([s[:, None] * u, -s[:, None] * u, s[:, None] * v, -s[:, None] * v], axis=1)
+        blocks = np.stack([s[:, None] * u, -s[:, None] * u, s[:, None] * v_c, -s[:, None] * v_c], axis=1)
         jac.append(np.einsum("rsk,rsf->rfk", blocks, wk[d.slots]))
     if len(lin):
         axis = np.asarray(lin.axis, dtype=float)

@@ -83,11 +83,20 @@ def points(topo: Topology, w: Float[Array, "K 4"], r: Float[Array, "P 3"]) -> Fl
     return jnp.einsum("kt,ktj->kj", w, r[topo.point_slots()])
 
 
+def quarter_turn(u: Float[Array, "n 3"], turn, sign: float = 1.0) -> Float[Array, "n 3"]:
+    """``sign * Rz u`` (``Rz`` a quarter turn about z) on the rows flagged in ``turn``, ``u`` elsewhere."""
+    if turn is None:
+        return u
+    r = sign * jnp.stack([-u[:, 1], u[:, 0], jnp.zeros_like(u[:, 0])], axis=1)
+    return jnp.where(jnp.asarray(np.asarray(turn, dtype=bool))[:, None], r, u)
+
+
 def _dot_geometry(topo: Topology, p):
+    """``(v, u, s)`` of every dot row, with ``u`` already turned on turned rows (residual ``s v . u``)."""
     rows = topo.dot
     u = p[np.asarray(rows.c, dtype=int)] - p[np.asarray(rows.d, dtype=int)]
     v = p[np.asarray(rows.a, dtype=int)] - p[np.asarray(rows.b, dtype=int)]
-    return v, u, jnp.asarray(rows.scale, dtype=p.dtype)
+    return v, quarter_turn(u, rows.turned), jnp.asarray(rows.scale, dtype=p.dtype)
 
 
 def _driven_vectors(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, "K 3"]:
@@ -120,7 +129,7 @@ def row_residuals(mech: Mechanism, pts: Float[Array, "K 3"], t=0.0) -> Float[Arr
 def row_blocks(topo: Topology, pts: Float[Array, "K 3"]) -> Float[Array, "D 4 3"]:
     """``d residual / d p`` of every slot of every dot row (the linear rows' blocks are constant, ``+-e``)."""
     v, u, s = _dot_geometry(topo, pts)
-    su, sv = s[:, None] * u, s[:, None] * v
+    su, sv = s[:, None] * u, s[:, None] * quarter_turn(v, topo.dot.turned, -1.0)  # d/dp_c of v.Rz u is Rz^T v
     return jnp.stack([su, -su, sv, -sv], axis=1)
 
 

@@ -17,6 +17,8 @@ Every constraint is one of two typed row kinds on points, each evaluated for all
 * :class:`DotRows` ``s (p_a - p_b).(p_c - p_d) - kappa = 0`` — the rigid distances inside every body (Attia eqs.
   (11)–(16), ``a = c``, ``b = d``, ``s = 1/2``), massless links, a point kept on a body's line and the rows of a
   prismatic joint (the line's perpendicular directions are body points too);
+  in a planar mechanism a row may be *turned* (its second vector rotated a quarter turn in the plane), for lines
+  carried by rods;
 * :class:`LinearRows` ``e . (p_a - p_b) = 0`` for a constant unit ``e`` — cut joints that close loops (``r_a = r_b``,
   Attia §2.4) as three rows.
 
@@ -44,7 +46,9 @@ __all__ = ["Mechanism", "Topology", "DotRows", "LinearRows", "DriveRows", "Appli
 
 @dataclasses.dataclass(frozen=True)
 class DotRows:
-    """Rows ``scale (p_a - p_b).(p_c - p_d) - kappa``; point indices ``a, b, c, d`` (one entry per row)."""
+    """Rows ``scale (p_a - p_b).(p_c - p_d) - kappa``; point indices ``a, b, c, d`` (one entry per row). A *turned*
+    row (planar mechanisms) reads ``scale (p_a - p_b).Rz (p_c - p_d) - kappa`` with ``Rz`` the quarter turn about
+    z: a point on a line of a rod, whose in-plane normal is no affine combination of the rod's two particles."""
 
     a: tuple[int, ...]
     b: tuple[int, ...]
@@ -52,9 +56,15 @@ class DotRows:
     d: tuple[int, ...]
     scale: tuple[float, ...]
     labels: tuple[str, ...]
+    turn: tuple[bool, ...] = ()  # empty: no turned rows
 
     def __len__(self) -> int:
         return len(self.a)
+
+    @property
+    def turned(self) -> tuple[bool, ...] | None:
+        """Per-row turn flags, or ``None`` when no row is turned (the common case, which pays nothing)."""
+        return tuple(self.turn) if any(self.turn) else None
 
     @property
     def slots(self) -> np.ndarray:
