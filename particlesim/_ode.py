@@ -69,7 +69,8 @@ class Solution(eqx.Module):
     ``ts``: (T,) save times; ``q``, ``qd``: (T, n) coordinates and their rates (joint angles for trees, particle
     positions for mechanisms). ``steps``/``rejected``: accepted and rejected step counts. ``status``: diffrax
     ``RESULTS`` code, ``ok``: whether t1 was reached. When ``ok`` is false (only possible with ``throw=False``),
-    ``q`` and ``qd`` are all NaN: a failed run never returns numbers that look valid.
+    ``q`` and ``qd`` are all NaN: a failed run never returns numbers that look valid. ``events``: the switches
+    located by an evented rollout (:class:`Events`), else ``None``.
     """
 
     ts: Float[Array, " T"]
@@ -79,6 +80,7 @@ class Solution(eqx.Module):
     rejected: Int[Array, ""]
     status: diffrax.RESULTS
     ok: Bool[Array, ""]
+    events: "Events | None" = None  # the located switches of an evented rollout
 
 
 @dataclasses.dataclass(frozen=True)
@@ -307,6 +309,107 @@ class _Projected(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSolver):
 
     def func(self, terms, t0, y0, args):
         return self.solver.func(terms, t0, y0, args)
+
+
+def _solver_and_controller(cfg: Settings, rtol, atol, projection):
+    implicit = cfg.solver in IMPLICIT_SOLVERS
+    controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=cfg.pid[0], icoeff=cfg.pid[1],
+                                       dcoeff=cfg.pid[2])
+    kw = {}
+    if isinstance(cfg.adjoint, diffrax.ForwardMode):
+        kw["scan_kind"] = "lax"
+    elif isinstance(cfg.adjoint, diffrax.DirectAdjoint):
+        kw["scan_kind"] = "bounded"
+    if implicit:
+        kw["root_finder"] = diffrax.VeryChord(rtol=rtol, atol=atol, norm=controller.norm)
+    solver = SOLVERS[cfg.solver](**kw)
+    if projection is not None:
+        solver = _Projected(solver, projection)
+    return solver, controller
+
+
+class Events(eqx.Module):
+    """The switches located in an evented rollout (:func:`integrate_events`), in order: ``ts`` (E,) their times
+    (``inf`` where unused), ``element`` (E,) the index of the switching element (``-1`` unused), ``active`` (E,)
+    whether the element's switched-on law (a tyre in contact, ...) holds after the switch."""
+
+    ts: Float[Array, " E"]
+    element: Int[Array, " E"]
+    active: Bool[Array, " E"]
+
+
+#: Event times are located by Newton's method on the step's dense output to this tolerance [s].
+EVENT_TOL = 1e-13
+
+
+def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_surfaces: int, max_events: int, *,
+                     t0: Array, t1: Array, rtol: Array, atol: Array, dt0, ts, cfg: Settings,
+                     projection: Callable | None = None):
+    """:func:`integrate` of a switching system as smooth segments joined at located events.
+
+    ``modes`` (S,) holds each switching element's law (1.0 on, 0.0 off) and stays fixed within a segment:
+    ``field(t, y, (args, modes))`` is smooth there (each law extended across its surface). ``surfaces(t, y, args,
+    modes)`` (S,) are the switching functions signed so that they are positive in the current mode and cross zero
+    downwards at a switch. Each segment runs until the first crossing, located by a root-find on the step's
+    dense output (so the event time is a differentiable function of parameters and state, by the implicit
+    function theorem); the element's law flips there and the next segment starts from the event state
+    (projected, if ``projection`` is given). ``max_events + 1`` segments at most (one ``lax.scan``, so every adjoint
+    differentiates it); a run with more switches fails. Returns ``(ts, ys, steps, rejected, result, ok, events)``.
+    """
+    import optimistix as optx
+
+    solver, controller = _solver_and_controller(cfg, rtol, atol, projection)
+    save = ts if cfg.save_ts else jnp.stack([t0, t1])
+    root = optx.Newton(rtol=EVENT_TOL, atol=EVENT_TOL)
+    conds = [lambda t, y, args, _i=i, **kw: surfaces(t, y, args[0], args[1])[_i] for i in range(n_surfaces)]
+    event = diffrax.Event(conds, root_finder=root, direction=[False] * n_surfaces)
+    term = diffrax.ODETerm(field)
+
+    def segment(carry, _):
+        t_s, y_s, modes, acc, steps, rejected, failed, n_ev, ev_t, ev_el, ev_on = carry
+        sol = diffrax.diffeqsolve(
+            term, solver, t0=t_s, t1=t1, dt0=dt0, y0=y_s, args=(args, modes),
+            saveat=diffrax.SaveAt(subs=[diffrax.SubSaveAt(ts=jnp.clip(save, t_s, t1)), diffrax.SubSaveAt(t1=True)]),
+            stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps, throw=cfg.throw,
+            event=event)
+        which = jnp.stack([jnp.asarray(m) for m in sol.event_mask])
+        hit = jnp.any(which)
+        t_e = sol.ts[1][0]  # the event time (t1 without an event)
+        y_e = jax.tree.map(lambda v: v[0], sol.ys[1])
+        if projection is not None:
+            y_e = projection(t_e, y_e, args)
+        seg = sol.ys[0]
+        valid = (save >= t_s) & (save <= t_e)
+        acc = jax.tree.map(lambda a, v: jnp.where(valid.reshape((-1,) + (1,) * (v.ndim - 1)), v, a), acc, seg)
+        new_modes = jnp.where(which, 1.0 - modes, modes)
+        el = jnp.argmax(which)
+        slot = jnp.minimum(n_ev, max_events - 1)
+        record = hit & (n_ev < max_events)
+        ev_t = jnp.where(record, ev_t.at[slot].set(t_e), ev_t)
+        ev_el = jnp.where(record, ev_el.at[slot].set(el), ev_el)
+        ev_on = jnp.where(record, ev_on.at[slot].set(new_modes[el] > 0.5), ev_on)
+        bad = (sol.result != diffrax.RESULTS.successful) & (sol.result != diffrax.RESULTS.event_occurred)
+        failed = diffrax.RESULTS.where(bad & (failed == diffrax.RESULTS.successful), sol.result, failed)
+        return (t_e, y_e, new_modes, acc, steps + sol.stats["num_accepted_steps"],
+                rejected + sol.stats["num_rejected_steps"], failed, n_ev + hit.astype(int), ev_t, ev_el,
+                ev_on), None
+
+    acc0 = jax.tree.map(lambda v: jnp.full((save.shape[0],) + v.shape, jnp.nan, v.dtype), y0)
+    zero = jnp.zeros((), dtype=int)
+    init = (jnp.asarray(t0, dtype=float), y0, jnp.asarray(modes0, dtype=float), acc0, zero, zero,
+            diffrax.RESULTS.successful, zero, jnp.full((max_events,), jnp.inf), jnp.full((max_events,), -1),
+            jnp.zeros((max_events,), dtype=bool))
+    out, _ = jax.lax.scan(segment, init, None, length=max_events + 1)
+    t_end, _, _, ys, steps, rejected, result, n_ev, ev_t, ev_el, ev_on = out
+    too_many = t_end < t1
+    result = diffrax.RESULTS.where(too_many & (result == diffrax.RESULTS.successful),
+                                   diffrax.RESULTS.event_occurred, result)
+    ok = result == diffrax.RESULTS.successful
+    if cfg.throw:
+        ys = eqx.error_if(ys, too_many, f"more switches than max_events = {max_events} before t1: raise max_events "
+                                        "(or a switching element chatters, e.g. a contact at rest)")
+    ys = jax.tree.map(lambda y: jnp.where(ok, y, jnp.nan), ys)
+    return save, ys, steps, rejected, result, ok, Events(ts=ev_t, element=ev_el, active=ev_on)
 
 
 def integrate(field: Callable, y0, args, *, t0: Array, t1: Array, rtol: Array, atol: Array, dt0, ts,

@@ -7,7 +7,7 @@ from .chain import ChainPlan, chain_accelerations, chain_mass_blocks, chain_plan
 from .constraints import constraint_gamma, constraint_jacobian, constraint_labels, constraints, velocity_constraints
 from .dynamics import Prepared, prepare, mass_properties, accelerations, accelerations_and_multipliers, kinetic_energy, residuals, total_energy
 from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
-from .integrate import project, simulate_mechanism
+from .integrate import SwitchCrossedWarning, project, simulate_mechanism
 from .kinematics import KinematicSolution, kinematic_analysis
 from .model import Mechanism
 from .outputs import (body_angles, body_com_positions, body_poses, body_reactions, body_velocities, cut_joint_forces,
@@ -41,6 +41,7 @@ __all__ = [
     "body_angular_velocity",
     "project",
     "simulate_mechanism",
+    "SwitchCrossedWarning",
     "kinematic_analysis",
     "KinematicSolution",
     "driver_efforts",

@@ -46,24 +46,24 @@ def mass_properties(mech: Mechanism) -> Prepared:
     return prepare(mech)
 
 
-def _forces(mech: Mechanism, prep: Prepared, t, x, xd):
+def _forces(mech: Mechanism, prep: Prepared, t, x, xd, contact=None):
     """Point forces ``(K, 3)`` (or None) and torque generalised forces ``(3F,)`` (or None)."""
     topo = mech.topo
     f_pts = None
     if topo.spring_names or topo.tyre_names or any(ap.kind == "force" for ap in mech.applied):
         pts = prep.wk @ x.reshape(-1, 3) + prep.p0
         vel = prep.wk @ xd.reshape(-1, 3)
-        f_pts = point_forces(mech, t, x, xd, pts, vel)
+        f_pts = point_forces(mech, t, x, xd, pts, vel, contact)
     return f_pts, torque_forces(mech, t, x, xd)
 
 
-def _solve(mech: Mechanism, prep: Prepared, t, x, xd, baumgarte: float):
+def _solve(mech: Mechanism, prep: Prepared, t, x, xd, baumgarte: float, contact=None):
     r = rows(prep, x, xd, drive_at(mech, t))
     g = gamma(prep, r)
     if baumgarte:
         g = g - 2.0 * baumgarte * (apply_j(prep, r, xd.reshape(-1, 3)) - velocity_target(prep, r)) - \
             baumgarte**2 * residual(prep, mech.dot_kappa, r, x)
-    f_pts, q_torque = _forces(mech, prep, t, x, xd)
+    f_pts, q_torque = _forces(mech, prep, t, x, xd, contact)
     if mech.topo.saddle_point:
         return _solve_kkt(prep, r, g, f_pts, q_torque, mech.topo.least_squares)
     minv_q = prep.minv_qg

@@ -46,9 +46,18 @@ def body_angular_velocity(mech: Mechanism, b: int, x, xd) -> Float[Array, "3"]:
     return unskew(fd @ f.T)
 
 
-def point_forces(mech: Mechanism, t, x, xd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"]):
+def tyre_deflections(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, " T"]:
+    """Height of every tyre's measuring point above its ground plane minus its radius (negative: in contact)."""
+    topo = mech.topo
+    k = np.asarray(topo.tyre_points, dtype=int)
+    n = jnp.asarray(topo.tyre_normals, dtype=pts.dtype)
+    return jnp.sum(pts[k] * n, axis=1) - mech.tyre_ground - mech.tyre_radius
+
+
+def point_forces(mech: Mechanism, t, x, xd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"], contact=None):
     """Cartesian force on every point from springs, tyres and applied forces, ``(K, 3)``; ``None`` if the
-    mechanism has none of them."""
+    mechanism has none of them. ``contact`` (T,) fixes each tyre's law (in contact or not) instead of reading it
+    from the sign of its deflection: the smooth branch of an evented rollout (:mod:`.events`)."""
     topo = mech.topo
     forces_applied = [ap for ap in mech.applied if ap.kind == "force"]
     if not (topo.spring_names or topo.tyre_names or forces_applied):
@@ -67,7 +76,8 @@ def point_forces(mech: Mechanism, t, x, xd, pts: Float[Array, "K 3"], vel: Float
         k = np.asarray(topo.tyre_points, dtype=int)
         n = jnp.asarray(topo.tyre_normals, dtype=pts.dtype)
         dist = jnp.sum(pts[k] * n, axis=1) - mech.tyre_ground - mech.tyre_radius
-        f = jnp.where(dist < 0.0, -(mech.tyre_stiffness * dist + mech.tyre_damping * jnp.sum(vel[k] * n, axis=1)),
+        touching = dist < 0.0 if contact is None else contact
+        f = jnp.where(touching, -(mech.tyre_stiffness * dist + mech.tyre_damping * jnp.sum(vel[k] * n, axis=1)),
                       0.0)
         at = np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k
         f_pts = f_pts.at[at].add(f[:, None] * n)

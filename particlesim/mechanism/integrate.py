@@ -21,6 +21,8 @@ sensitivities of a different (unprojected) flow. It is therefore refused with ``
 
 from __future__ import annotations
 
+import warnings
+
 import diffrax
 import jax
 import jax.numpy as jnp
@@ -33,9 +35,10 @@ from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_pro
 from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian, prepare, residual, rows,
                        schur, solve_schur, velocity_target)
 from .dynamics import _solve
+from .forces import tyre_deflections
 from .model import Mechanism
 
-__all__ = ["ADJOINTS", "project", "simulate_mechanism"]
+__all__ = ["ADJOINTS", "project", "simulate_mechanism", "SwitchCrossedWarning"]
 
 _POSITION_ITERATIONS = 2
 _VELOCITY_PASSES = 2
@@ -107,7 +110,8 @@ def parameter_groups(mech: Mechanism) -> list:
 
 
 @_ode.cached("simulate_mechanism")
-def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabilise, baumgarte, solve):
+def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabilise, baumgarte, solve,
+              max_events=0, warn_switch=False):
     param_bad = _ode.check_finite("simulate_mechanism", parameter_groups(mech))
     x0, xd0 = _ode.runtime_checks((x0, xd0), time_bad, param_bad, "simulate_mechanism", "(x0, xd0)")
     plan = chain_plan(mech) if solve == "chain" else None
@@ -138,12 +142,64 @@ def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
             return chain_project(m, plan, *y, mass_blocks=cb)
         return project_prepared(m, p, *y, t)
 
-    ts_, (xs, xds), steps, rejected, result, ok = _ode.integrate(
-        field, (x0, xd0), [leaves[i] for i in arrays], t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
-        cfg=cfg, projection=projection if stabilise else None)
+    def deflections(x, m, p):
+        return tyre_deflections(m, p.wk @ x.reshape(-1, 3) + p.p0)
+
+    events = None
+    args0 = [leaves[i] for i in arrays]
+    if max_events:  # tyres switch at located events: each segment keeps every tyre's law fixed
+        def field_modes(t, y, args):
+            m, p, cb = unpack(args[0])
+            x, xd = y
+            return xd, _solve(m, p, t, x, xd, baumgarte, contact=args[1] > 0.5)[0]
+
+        def surfaces(t, y, args, modes):
+            m, p, _ = unpack(args)
+            d = deflections(y[0], m, p)
+            return jnp.where(modes > 0.5, -d, d)  # positive in the current law, crossing zero downwards
+
+        modes0 = (deflections(x0, mech, prep) < 0.0).astype(x0.dtype)
+        ts_, (xs, xds), steps, rejected, result, ok, events = _ode.integrate_events(
+            field_modes, (x0, xd0), args0, modes0, surfaces, len(mech.topo.tyre_names), max_events, t0=t0, t1=t1,
+            rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg, projection=projection if stabilise else None)
+    else:
+        ts_, (xs, xds), steps, rejected, result, ok = _ode.integrate(
+            field, (x0, xd0), args0, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
+            cfg=cfg, projection=projection if stabilise else None)
     if stabilise:
-        xs, xds = jax.lax.map(lambda tab: projection(tab[0], tab[1:], [leaves[i] for i in arrays]), (ts_, xs, xds))
-    return Solution(ts=ts_, q=xs, qd=xds, steps=steps, rejected=rejected, status=result, ok=ok)
+        xs, xds = jax.lax.map(lambda tab: projection(tab[0], tab[1:], args0), (ts_, xs, xds))
+    if warn_switch:  # a differentiated rollout stepping across a tyre's switch: say so (derivatives are biased)
+        touching = jax.vmap(lambda x: deflections(x, mech, prep) < 0.0)(jnp.concatenate([x0[None], xs]))
+        jax.debug.callback(_warn_switches, jnp.any(touching[1:] != touching[:-1], axis=0),
+                           names=mech.topo.tyre_names)
+    return Solution(ts=ts_, q=xs, qd=xds, steps=steps, rejected=rejected, status=result, ok=ok, events=events)
+
+
+def _warn_switches(changed, names):
+    changed = np.asarray(changed).reshape(-1, len(names)).any(axis=0)
+    hit = [n for n, c in zip(names, changed) if c]
+    if hit:
+        warnings.warn(f"tyre(s) {', '.join(repr(n) for n in hit)} switched (contact opened or closed) inside a "
+                      "differentiated rollout that steps across the switch without locating it: the derivatives "
+                      "miss the jump at the switch and are biased. Pass events=True to locate switches",
+                      SwitchCrossedWarning, stacklevel=2)
+
+
+class SwitchCrossedWarning(UserWarning):
+    """A switching force element changed its law inside a differentiated rollout run without events."""
+
+
+def _differentiated(tree) -> bool:
+    """Whether any array leaf carries a forward- or reverse-mode derivative (a JVP or linearize tracer, possibly
+    under batching)."""
+    for leaf in jax.tree.leaves(tree):
+        seen = 0
+        while isinstance(leaf, jax.core.Tracer) and seen < 8:
+            if type(leaf).__name__ in ("JVPTracer", "LinearizeTracer"):
+                return True
+            leaf = getattr(leaf, "val", getattr(leaf, "primal", None))
+            seen += 1
+    return False
 
 
 #: A driven mechanism's initial state must meet its driving rows to this fraction of the mechanism's size (and
@@ -176,7 +232,8 @@ def _check_driven_start(mech: Mechanism, x0, xd0, t0) -> None:
 def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver: str = "tsit5",
                        rtol: float = 1e-8, atol: float = 1e-10, dt0=None, saveat_ts=None, max_steps: int = 100_000,
                        stabilise: bool = True, baumgarte: float = 0.0, adjoint=None, throw: bool = True,
-                       progress: bool = False, solve: str = "dense") -> Solution:
+                       progress: bool = False, solve: str = "dense", events: bool = False,
+                       max_events: int = 16) -> Solution:
     """Integrate the mechanism from ``(x0, xd0)``; returns a :class:`~particlesim.simulate.Solution` whose ``q``
     and ``qd`` are particle positions and velocities ``(T, 3F)``.
 
@@ -189,6 +246,13 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
     mechanism; one Cholesky factorisation of the ``C x C`` constraint system per evaluation) or "chain" (the O(N)
     tip-to-base recursion of :mod:`.chain`, for uniform serial chains). ``adjoint``: a name in :data:`ADJOINTS`
     or a diffrax adjoint; ``None`` is "checkpoint". "backsolve" requires ``stabilise=False`` (module docstring).
+
+    ``events=True`` locates every switch of a tyre (contact closing or opening) instead of stepping across it:
+    the run is split into smooth segments (each tyre's law fixed), each ending where a deflection crosses zero
+    (root-found on the step's dense output), so that derivatives carry the jump at the switch; at most
+    ``max_events`` switches. The switches are reported in ``Solution.events`` (:class:`~particlesim._ode.Events`;
+    ``element`` indexes ``mech.topo.tyre_names``). Without events, a differentiated rollout in which a tyre
+    switches warns (:class:`SwitchCrossedWarning`). "backsolve" is not available with events.
 
     Raises ``ValueError`` for unknown names, bad tolerances or times, a non-finite initial state; ``ModelError``
     for wrong state shapes or non-finite mechanism parameters (at run time under jit); the error names the
@@ -204,6 +268,12 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
             "'direct' or 'forward', or stabilise=False (then with Baumgarte terms if drift matters)")
     if solve not in ("dense", "chain"):
         raise ValueError(f"unknown solve {solve!r}; choose 'dense' or 'chain'")
+    if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:
+        raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
+    evented = bool(events) and bool(mech.topo.tyre_names)
+    if evented and (solve == "chain" or isinstance(cfg.adjoint, diffrax.BacksolveAdjoint)):
+        raise ValueError("events=True needs solve='dense' and a discrete adjoint ('checkpoint', 'direct', "
+                         "'forward'): 'backsolve' would integrate backwards across the located switches")
     if solve == "chain":
         if baumgarte:
             raise ValueError("baumgarte terms are available with solve='dense' only")
@@ -218,5 +288,6 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
     _ode.check_finite("simulate_mechanism", parameter_groups(mech))  # eager, for concrete values
     if len(mech.topo.drive):
         _check_driven_start(mech, x0, xd0, t0)
+    warn = not evented and bool(mech.topo.tyre_names) and _differentiated((mech, x0, xd0))
     return _simulate(mech, x0, xd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg, bool(stabilise),
-                     float(baumgarte), solve)
+                     float(baumgarte), solve, int(max_events) if evented else 0, warn)
