@@ -338,6 +338,36 @@ class Events(eqx.Module):
     active: Bool[Array, " E"]
 
 
+class SwitchCrossedWarning(UserWarning):
+    """A switching force law (a tyre's contact, Coulomb friction's sign) changed inside a differentiated rollout
+    run without events: the derivatives miss the jump at the switch."""
+
+
+def warn_switches(changed, labels) -> None:
+    """Host side of the switch check: warn naming every element whose law changed (``changed`` (..., S))."""
+    import warnings
+
+    changed = np.asarray(changed).reshape(-1, len(labels)).any(axis=0)
+    hit = [n for n, c in zip(labels, changed) if c]
+    if hit:
+        warnings.warn(f"{', '.join(hit)} switched inside a differentiated rollout that steps across the switch "
+                      "without locating it: the derivatives miss the jump at the switch and are biased. Pass "
+                      "events=True to locate switches", SwitchCrossedWarning, stacklevel=2)
+
+
+def differentiated(tree) -> bool:
+    """Whether any array leaf carries a forward- or reverse-mode derivative (a JVP or linearize tracer, possibly
+    under batching): decided when the entry point is called, outside its compiled program."""
+    for leaf in jax.tree.leaves(tree):
+        seen = 0
+        while isinstance(leaf, jax.core.Tracer) and seen < 8:
+            if type(leaf).__name__ in ("JVPTracer", "LinearizeTracer"):
+                return True
+            leaf = getattr(leaf, "val", getattr(leaf, "primal", None))
+            seen += 1
+    return False
+
+
 #: Event times are located by Newton's method on the step's dense output to this tolerance [s].
 EVENT_TOL = 1e-13
 

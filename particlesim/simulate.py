@@ -21,6 +21,7 @@ from collections.abc import Callable
 from typing import Any
 
 import diffrax
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -47,7 +48,8 @@ def _check_state(params: Any, q0: Array, qd0: Array) -> None:
 
 
 @_ode.cached("simulate")
-def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg) -> Solution:
+def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, switch=(),
+              max_events=0, warn=()) -> Solution:
     param_bad = _ode.check_finite("simulate", _ode.leaf_groups(params))
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate", "(q0, qd0)")
 
@@ -56,11 +58,43 @@ def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, t
         tau = jnp.zeros_like(q) if control is None else control(t, q, qd, p)
         return qd, dynamics(p, q, qd, tau)
 
-    # The parameters reach diffrax through ``args`` (not a closure), so every adjoint, BacksolveAdjoint included,
-    # differentiates them.
-    ts_, (q, qd), steps, rejected, result, ok = _ode.integrate(
-        vector_field, (q0, qd0), params, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg)
-    return Solution(ts=ts_, q=q, qd=qd, steps=steps, rejected=rejected, status=result, ok=ok)
+    events = None
+    if switch:  # Coulomb friction of the listed joints at located events: each segment keeps every sign fixed
+        idx = np.asarray(switch, dtype=int)
+
+        def field_modes(t, y, args):
+            p, modes = args
+            q, qd = y
+            tau = jnp.zeros_like(q) if control is None else control(t, q, qd, p)
+            sign = jnp.sign(qd).at[idx].set(2.0 * modes - 1.0)
+            # the friction law of this segment as a generalised force; the model's own Coulomb term is zeroed
+            smooth = eqx.tree_at(lambda m: m.coulomb, p, jnp.zeros_like(p.coulomb))
+            return qd, dynamics(smooth, q, qd, tau - p.coulomb * sign)
+
+        def surfaces(t, y, p, modes):
+            return (2.0 * modes - 1.0) * y[1][idx]  # the velocity along the segment's sign: crosses zero downwards
+
+        # starting at rest, a joint moves the way it accelerates without its Coulomb friction
+        free = eqx.tree_at(lambda m: m.coulomb, params, jnp.zeros_like(params.coulomb))
+        tau0 = jnp.zeros_like(q0) if control is None else control(t0, q0, qd0, params)
+        start = jnp.where(qd0 != 0.0, qd0, dynamics(free, q0, qd0, tau0))
+        modes0 = (start[idx] >= 0.0).astype(qd0.dtype)
+        ts_, (q, qd), steps, rejected, result, ok, ev = _ode.integrate_events(
+            field_modes, (q0, qd0), params, modes0, surfaces, len(idx), max_events, t0=t0, t1=t1, rtol=rtol,
+            atol=atol, dt0=dt0, ts=ts, cfg=cfg)
+        joint = jnp.where(ev.element >= 0, jnp.asarray(idx)[jnp.maximum(ev.element, 0)], -1)
+        events = _ode.Events(ts=ev.ts, element=joint, active=ev.active)
+    else:
+        # The parameters reach diffrax through ``args`` (not a closure), so every adjoint, BacksolveAdjoint
+        # included, differentiates them.
+        ts_, (q, qd), steps, rejected, result, ok = _ode.integrate(
+            vector_field, (q0, qd0), params, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg)
+    if warn:  # a differentiated rollout stepping across a Coulomb switch: say so
+        w = np.asarray([j for j, _ in warn], dtype=int)
+        v = jnp.concatenate([qd0[None], qd])[:, w]
+        jax.debug.callback(_ode.warn_switches, jnp.any(jnp.sign(v[1:]) != jnp.sign(v[:-1]), axis=0),
+                           labels=[f"Coulomb friction of joint '{n}'" for _, n in warn])
+    return Solution(ts=ts_, q=q, qd=qd, steps=steps, rejected=rejected, status=result, ok=ok, events=events)
 
 
 def simulate(
@@ -82,6 +116,8 @@ def simulate(
     pid: tuple[float, float, float] | None = None,
     throw: bool = True,
     progress: bool = False,
+    events: bool = False,
+    max_events: int = 16,
 ) -> Solution:
     """Integrate q̈ = dynamics(params, q, q̇, τ) from (q0, qd0) at t0 to t1.
 
@@ -111,6 +147,16 @@ def simulate(
         throw: if True (default) a failed integration raises at run time (also under jit); if False the
             returned :class:`Solution` has ``ok = False`` and NaN trajectories.
         progress: show a tqdm progress bar.
+        events: locate every sign change of the joint velocities that carry Coulomb friction (``params`` a
+            model with a ``coulomb`` field, e.g. a ``TreeModel``, and ``dynamics`` that applies it as
+            ``friction_torques`` does, like :func:`~particlesim.tree.forward_dynamics`): the run is split into
+            segments with each friction sign fixed, ending where a velocity crosses zero (root-found on the step's
+            dense output), so that derivatives carry the jump of the friction torque. At most ``max_events``
+            switches; they are reported in ``Solution.events`` (``element``: the joint index; ``active``: the
+            joint moves in the positive direction after it). A joint that sticks (its velocity returning to zero
+            at once) exhausts ``max_events`` with an error: the sign law has no stiction; use ``smooth_friction``
+            there. Without events, a differentiated rollout whose Coulomb joints reverse warns
+            (:class:`~particlesim._ode.SwitchCrossedWarning`).
 
     Raises:
         ValueError: unknown solver or adjoint name; non-positive tolerances or step budget; ``t1 <= t0``;
@@ -132,4 +178,22 @@ def simulate(
     if out.shape != q0.shape:
         raise ModelError(f"dynamics returned shape {out.shape} for a state of shape {q0.shape}")
     _ode.check_finite("simulate", _ode.leaf_groups(params))  # eager, for concrete values
-    return _simulate(dynamics, control, params, q0, qd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg)
+    if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:
+        raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
+    coulomb = getattr(params, "coulomb", None)
+    names = getattr(params, "joint_names", None) or tuple(f"joint{i}" for i in range(q0.shape[0]))
+    switch: tuple = ()
+    if coulomb is not None:
+        # the joints whose friction switches: those with a non-zero Coulomb level (all of them when traced)
+        c = np.asarray(coulomb) if _ode._concrete(coulomb) else np.ones(q0.shape[0])
+        switch = tuple(int(i) for i in np.flatnonzero(c))
+    if events:
+        if coulomb is None:
+            raise ValueError("events=True: the model has no switching element (Coulomb friction, params.coulomb)")
+        if isinstance(cfg.adjoint, diffrax.BacksolveAdjoint):
+            raise ValueError("events=True needs a discrete adjoint ('checkpoint', 'direct', 'forward')")
+        return _simulate(dynamics, control, params, q0, qd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg,
+                         switch, int(max_events) if switch else 0)
+    warn = tuple((j, names[j]) for j in switch) if switch and _ode.differentiated((params, q0, qd0)) else ()
+    return _simulate(dynamics, control, params, q0, qd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg,
+                     warn=warn)

@@ -40,6 +40,8 @@ from .model import Mechanism
 
 __all__ = ["ADJOINTS", "project", "simulate_mechanism", "SwitchCrossedWarning"]
 
+SwitchCrossedWarning = _ode.SwitchCrossedWarning
+
 _POSITION_ITERATIONS = 2
 _VELOCITY_PASSES = 2
 
@@ -176,30 +178,7 @@ def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
 
 
 def _warn_switches(changed, names):
-    changed = np.asarray(changed).reshape(-1, len(names)).any(axis=0)
-    hit = [n for n, c in zip(names, changed) if c]
-    if hit:
-        warnings.warn(f"tyre(s) {', '.join(repr(n) for n in hit)} switched (contact opened or closed) inside a "
-                      "differentiated rollout that steps across the switch without locating it: the derivatives "
-                      "miss the jump at the switch and are biased. Pass events=True to locate switches",
-                      SwitchCrossedWarning, stacklevel=2)
-
-
-class SwitchCrossedWarning(UserWarning):
-    """A switching force element changed its law inside a differentiated rollout run without events."""
-
-
-def _differentiated(tree) -> bool:
-    """Whether any array leaf carries a forward- or reverse-mode derivative (a JVP or linearize tracer, possibly
-    under batching)."""
-    for leaf in jax.tree.leaves(tree):
-        seen = 0
-        while isinstance(leaf, jax.core.Tracer) and seen < 8:
-            if type(leaf).__name__ in ("JVPTracer", "LinearizeTracer"):
-                return True
-            leaf = getattr(leaf, "val", getattr(leaf, "primal", None))
-            seen += 1
-    return False
+    _ode.warn_switches(changed, [f"tyre '{n}'" for n in names])
 
 
 #: A driven mechanism's initial state must meet its driving rows to this fraction of the mechanism's size (and
@@ -288,6 +267,6 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
     _ode.check_finite("simulate_mechanism", parameter_groups(mech))  # eager, for concrete values
     if len(mech.topo.drive):
         _check_driven_start(mech, x0, xd0, t0)
-    warn = not evented and bool(mech.topo.tyre_names) and _differentiated((mech, x0, xd0))
+    warn = not evented and bool(mech.topo.tyre_names) and _ode.differentiated((mech, x0, xd0))
     return _simulate(mech, x0, xd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg, bool(stabilise),
                      float(baumgarte), solve, int(max_events) if evented else 0, warn)
