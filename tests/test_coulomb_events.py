@@ -28,6 +28,9 @@ from particlesim.tree import TreeModel, forward_dynamics
 EVENT_TOL = 1e-9
 #: Automatic derivatives against converged central differences, relative.
 GRAD_RTOL = 1e-6
+#: A vmapped member against the same run alone [rad, s]: the batched event root-find runs as a select over
+#: members, which moves round-off (measured 1.7e-11 rad after 3 s at rtol 1e-12).
+BATCH_TOL = 1e-9
 #: The two Richardson extrapolations must agree to this, relative.
 FD_AGREE = 1e-6
 M, L, IC, FC, FV, G, T_END = 1.0, 0.5, 0.01, 0.4, 0.05, 9.81, 3.0
@@ -121,3 +124,20 @@ def test_events_need_a_switching_element():
                       inertia=np.array([[M, M * L, 0, 0, IC, 0, 0, IC + M * L**2, 0, IC + M * L**2]]))
     with pytest.raises(ValueError, match="events=True: the model has no switching element"):
         simulate(forward_dynamics, model, jnp.zeros(1), jnp.zeros(1), 0.0, 1.0, events=True)
+
+
+def test_evented_rollouts_batch_under_vmap():
+    """Two Coulomb levels in one vmapped call: each member's switches and final state as when run alone."""
+    def run(p):
+        return simulate(forward_dynamics, _model(p), jnp.zeros(1), jnp.zeros(1), 0.0, T_END, solver="dopri8",
+                        rtol=1e-12, atol=1e-14, events=True)
+
+    ps = jnp.stack([jnp.asarray(P0), jnp.asarray(P0).at[0].set(0.6)])
+    batch = jax.vmap(run)(ps)
+    for i in range(2):
+        one = run(ps[i])
+        np.testing.assert_allclose(np.asarray(batch.q[i]), np.asarray(one.q), rtol=0, atol=BATCH_TOL)
+        n = int(np.sum(np.isfinite(np.asarray(one.events.ts))))
+        assert n >= 2
+        np.testing.assert_allclose(np.asarray(batch.events.ts[i, :n]), np.asarray(one.events.ts[:n]), atol=BATCH_TOL)
+    assert not np.allclose(np.asarray(batch.q[0]), np.asarray(batch.q[1]))

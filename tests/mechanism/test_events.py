@@ -1,5 +1,5 @@
-"""Gradients across contact switches: a planar two-mass suspension (chassis and wheel on a vertical guide, a
-spring-damper between them, a one-sided tyre under the wheel) dropped so that its tyre touches down, lifts off and
+"""Gradients across contact switches: a planar two-mass suspension (:mod:`particlesim.scenes.suspension_drop`:
+chassis and wheel on a vertical guide, a spring-damper between them, a one-sided tyre under the wheel) dropped so that its tyre touches down, lifts off and
 touches down again within the run. With ``events=True`` every switch is located, so that derivatives carry the
 jump of the tyre's damping force at contact:
 
@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from particlesim.mechanism import MechanismBuilder, SwitchCrossedWarning, simulate_mechanism
+from particlesim.mechanism import SwitchCrossedWarning, simulate_mechanism
+from particlesim.scenes.suspension_drop import DROP, drop_params, suspension_drop
 
 #: Event times against SciPy's event location on the two-coordinate equations [s].
 EVENT_TOL = 1e-9
@@ -27,44 +28,22 @@ EVENT_TOL = 1e-9
 GRAD_RTOL = 1e-6
 #: Central differences at two sets of steps must agree to this (their convergence), relative.
 FD_AGREE = 1e-6
-MC, MW, K, C, KT, CT, R, G, L0 = 250.0, 35.0, 2.0e4, 4.0e2, 1.5e5, 100.0, 0.3, 9.81, 0.5
-YC0, YW0, T_END = 1.15, 0.7, 1.3
+MC, MW, K, C, KT, CT, R, G, L0 = (DROP[k] for k in ("mc", "mw", "k", "c", "kt", "ct", "radius", "g", "free_length"))
+YC0, YW0, T_END = DROP["yc0"], DROP["yw0"], DROP["t_end"]
 TS = np.linspace(0.0, T_END, 27)
 P0 = np.array([K, C, KT, CT, MC, MW])
 NAMES = ["suspension stiffness", "suspension damping", "tyre stiffness", "tyre damping", "chassis mass",
          "wheel mass"]
 
 
-def _build():
-    mb = MechanismBuilder(planar=True)
-    mb.ground("G0", (0.0, 0.0))
-    mb.ground("G1", (0.0, 1.0))
-    mb.particle("C", (0.0, YC0))
-    mb.particle("C'", (0.0, YC0 + 0.2))
-    mb.particle("W", (0.0, YW0))
-    mb.particle("W'", (0.0, YW0 + 0.05))
-    mb.rod("chassis", "C", "C'", MC, com=(0.0, YC0), moment=0.0, on_negative="ignore")
-    mb.rod("wheel", "W", "W'", MW, com=(0.0, YW0), moment=0.0, on_negative="ignore")
-    mb.prismatic(("G0", "G1"), ("C", "C'"), name="chassis guide")
-    mb.prismatic(("G0", "G1"), ("W", "W'"), name="wheel guide")
-    mb.spring_damper("suspension", "C", "W", K, C, L0)
-    mb.tyre("tyre", "W", KT, CT, R, normal=(0.0, 1.0, 0.0))
-    return mb.build(dof=2)
-
-
 @pytest.fixture(scope="module")
 def model():
-    mech, x0 = _build()
+    mech, x0 = suspension_drop()
     names = [mech.topo.particle_names[i] for i in mech.topo.free]
     iy_c, iy_w = 3 * names.index("C") + 1, 3 * names.index("W") + 1
 
-    def with_p(p):
-        return mech.with_params(spring={"suspension": {"stiffness": p[0], "damping": p[1]}},
-                                tyre={"tyre": {"stiffness": p[2], "damping": p[3]}},
-                                body={"chassis": {"mass": p[4]}, "wheel": {"mass": p[5]}})
-
     def outputs(p, adjoint=None, events=True):
-        sol = simulate_mechanism(with_p(p), jnp.asarray(x0), jnp.zeros(mech.n_coords), 0.0, T_END,
+        sol = simulate_mechanism(drop_params(mech, p), jnp.asarray(x0), jnp.zeros(mech.n_coords), 0.0, T_END,
                                  solver="dopri8", rtol=1e-12, atol=1e-14, saveat_ts=TS, events=events,
                                  adjoint=adjoint)
         yc = sol.q[:, iy_c]
