@@ -312,15 +312,19 @@ class _Projected(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSolver):
 
 
 def _solver_and_controller(cfg: Settings, rtol, atol, projection):
+    """The solver (wrapped with the projection, if any) and the PID controller of ``cfg``."""
     implicit = cfg.solver in IMPLICIT_SOLVERS
     controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=cfg.pid[0], icoeff=cfg.pid[1],
                                        dcoeff=cfg.pid[2])
     kw = {}
+    # The Runge–Kutta stage loop: diffrax picks it from the adjoint for a bare solver; a wrapped (projected) one
+    # is given it up front: forward mode needs "lax", DirectAdjoint "bounded"; the checkpointed adjoint keeps
+    # diffrax's default, whose forward pass runs as a plain loop.
     if isinstance(cfg.adjoint, diffrax.ForwardMode):
         kw["scan_kind"] = "lax"
     elif isinstance(cfg.adjoint, diffrax.DirectAdjoint):
         kw["scan_kind"] = "bounded"
-    if implicit:
+    if implicit:  # chord-Newton stage solves at the controller's tolerances (diffrax's default, stated here)
         kw["root_finder"] = diffrax.VeryChord(rtol=rtol, atol=atol, norm=controller.norm)
     solver = SOLVERS[cfg.solver](**kw)
     if projection is not None:
@@ -447,22 +451,7 @@ def integrate(field: Callable, y0, args, *, t0: Array, t1: Array, rtol: Array, a
     """``diffrax.diffeqsolve`` of ``dy/dt = field(t, y, args)`` with the settings ``cfg``; ``projection(t, y, args)``
     is applied after every step when given. Returns ``(ts, ys, steps, rejected, result, ok)``; ``ys`` are NaN
     when the run failed (``throw=False``)."""
-    implicit = cfg.solver in IMPLICIT_SOLVERS
-    controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=cfg.pid[0], icoeff=cfg.pid[1],
-                                       dcoeff=cfg.pid[2])
-    kw = {}
-    # The Runge–Kutta stage loop: diffrax picks it from the adjoint for a bare solver; a wrapped (projected) one
-    # is given it up front: forward mode needs "lax", DirectAdjoint "bounded"; the checkpointed adjoint keeps
-    # diffrax's default, whose forward pass runs as a plain loop.
-    if isinstance(cfg.adjoint, diffrax.ForwardMode):
-        kw["scan_kind"] = "lax"
-    elif isinstance(cfg.adjoint, diffrax.DirectAdjoint):
-        kw["scan_kind"] = "bounded"
-    if implicit:  # chord-Newton stage solves at the controller's tolerances (diffrax's default, stated here)
-        kw["root_finder"] = diffrax.VeryChord(rtol=rtol, atol=atol, norm=controller.norm)
-    solver = SOLVERS[cfg.solver](**kw)
-    if projection is not None:
-        solver = _Projected(solver, projection)
+    solver, controller = _solver_and_controller(cfg, rtol, atol, projection)
     saveat = diffrax.SaveAt(ts=ts) if cfg.save_ts else diffrax.SaveAt(t0=True, t1=True)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(field), solver, t0=t0, t1=t1, dt0=dt0, y0=y0, args=args, saveat=saveat,
