@@ -53,10 +53,16 @@ def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, t
     param_bad = _ode.check_finite("simulate", _ode.leaf_groups(params))
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate", "(q0, qd0)")
 
+    def controlled(t, q, qd, p):
+        if control is None:
+            return jnp.zeros_like(q)
+        tau = control(t, q, qd, p)
+        return eqx.error_if(tau, ~jnp.all(jnp.isfinite(tau)), "simulate: the control returned a non-finite "
+                                                                "generalised force")
+
     def vector_field(t, y, p):
         q, qd = y
-        tau = jnp.zeros_like(q) if control is None else control(t, q, qd, p)
-        return qd, dynamics(p, q, qd, tau)
+        return qd, dynamics(p, q, qd, controlled(t, q, qd, p))
 
     events = None
     if switch:  # Coulomb friction of the listed joints at located events: each segment keeps every sign fixed
@@ -65,7 +71,7 @@ def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, t
         def field_modes(t, y, args):
             p, modes = args
             q, qd = y
-            tau = jnp.zeros_like(q) if control is None else control(t, q, qd, p)
+            tau = controlled(t, q, qd, p)
             sign = jnp.sign(qd).at[idx].set(2.0 * modes - 1.0)
             # the friction law of this segment as a generalised force; the model's own Coulomb term is zeroed
             smooth = eqx.tree_at(lambda m: m.coulomb, p, jnp.zeros_like(p.coulomb))
@@ -174,6 +180,11 @@ def simulate(
     def tau_of(q, qd):
         return jnp.zeros_like(q) if control is None else control(t0_, q, qd, params)
 
+    if control is not None:
+        tau_shape = jax.eval_shape(tau_of, q0, qd0).shape
+        if tau_shape != q0.shape:
+            raise ModelError(f"control returned shape {tau_shape} for a state of shape {q0.shape}: it must return "
+                             "one generalised force per coordinate (no broadcasting of scalars)")
     out = jax.eval_shape(lambda q, qd: dynamics(params, q, qd, tau_of(q, qd)), q0, qd0)
     if out.shape != q0.shape:
         raise ModelError(f"dynamics returned shape {out.shape} for a state of shape {q0.shape}")

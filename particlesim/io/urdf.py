@@ -1,8 +1,10 @@
 """URDF import into a :class:`~particlesim.tree.TreeModel` (``xml.etree``; visual/collision ignored).
 
-Supported joints: ``revolute``/``continuous`` (both revolute, limits ignored), ``prismatic`` and ``fixed``.
+Supported joints: ``revolute``/``continuous`` (both revolute; position limits not modelled, with a warning),
+``prismatic`` and ``fixed``. ``<dynamics damping friction>`` become viscous and Coulomb friction.
 Fixed joints are merged away: a link welded to a moving link adds its inertia to that link (the report's
-10-vectors about a common origin simply add), and the joints below it are re-expressed in that link's frame.
+10-vectors about a common origin simply add), and the joints below it are re-expressed in that link's frame; the
+merged link keeps its name as a frame (``frame_pose``, ``link_jacobian``: ``tool0``, ``panda_hand``).
 Links welded to the root are part of the world. The root link is fixed to the world at identity.
 
 URDF conventions (ROS): a joint places its child at ``origin`` (``xyz``, then ``rpy`` with ``R = Rz Ry Rx``),
@@ -26,7 +28,7 @@ from ..inertia import check_inertia
 from ..spatial import rpy_to_matrix
 from ..tree.model import PRISMATIC, REVOLUTE, TreeModel
 
-__all__ = ["load_urdf", "parse_urdf"]
+__all__ = ["load_urdf", "parse_urdf", "UnmodelledLimitsWarning"]
 
 _KINDS = {"revolute": REVOLUTE, "continuous": REVOLUTE, "prismatic": PRISMATIC, "fixed": None}
 
@@ -79,6 +81,8 @@ def _origin_params(m, c, i_com) -> np.ndarray:
 
 def read_urdf(source: Union[str, os.PathLike]):
     """``(label, root element)`` of a URDF path or string; :class:`ParseError` if unreadable or not a <robot>."""
+    if isinstance(source, str) and not source.strip():
+        raise ParseError("empty URDF source: give a file path or the URDF XML text")
     if isinstance(source, str) and source.lstrip().startswith("<"):
         label, text = "<urdf string>", source
     else:
@@ -96,20 +100,29 @@ def read_urdf(source: Union[str, os.PathLike]):
     return label, root
 
 
-def parse_urdf(source, gravity=(0.0, 0.0, -9.81), **params) -> TreeModel:
+def parse_urdf(source, gravity=(0.0, 0.0, -9.81), **params) -> TreeModel:  # noqa: D401
     """Alias of :func:`load_urdf`."""
     return load_urdf(source, gravity, **params)
 
 
+class UnmodelledLimitsWarning(UserWarning):
+    """A URDF declares joint position limits, which the model does not enforce."""
+
+
 def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, viscous=None, coulomb=None,
-              rotor_inertia=None) -> TreeModel:
+              rotor_inertia=None, limits: str = "warn") -> TreeModel:
     """Build a :class:`TreeModel` from a URDF file path or a URDF XML string.
 
-    ``gravity`` is in the frame of the root link. Optional per-joint ``viscous``/``coulomb`` friction and
-    ``rotor_inertia`` (eqs. 17–18; not URDF fields) are passed to the model. Raises :class:`ParseError` naming the
-    link/joint for unparsable files, unsupported joint types, kinematic loops, missing inertials on moving links,
-    and :class:`~particlesim.errors.InertiaError` for non-physical inertias.
+    ``gravity`` is in the frame of the root link. Joint friction: the file's ``<dynamics damping=... friction=...>``
+    become the model's ``viscous`` (N m s/rad) and ``coulomb`` (N m) levels (eq. 17) unless given here (an
+    argument replaces the file's values for every joint); ``rotor_inertia`` (eq. 18) is not a URDF field. Joint
+    position limits are not modelled: ``limits="warn"`` (default) warns (:class:`UnmodelledLimitsWarning`) naming
+    the limited joints, ``"ignore"`` accepts that silently. Raises :class:`ParseError` naming the link/joint for
+    unparsable files, unsupported joint types, duplicate names, kinematic loops, missing inertials on moving
+    links, and :class:`~particlesim.errors.InertiaError` for non-physical inertias.
     """
+    if limits not in ("warn", "ignore"):
+        raise ValueError(f"limits must be 'warn' or 'ignore', got {limits!r}")
     label, root = read_urdf(source)
     links = {}
     for el in root.findall("link"):
@@ -119,10 +132,15 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
         if name in links:
             raise ParseError(f"{label}: link '{name}' is defined twice")
         links[name] = el
-    joints, parent_joint = [], {}
+    if not links:
+        raise ParseError(f"{label}: the robot has no <link>")
+    joints, parent_joint, seen_names = [], {}, set()
     for el in root.findall("joint"):
         name, jtype = el.get("name"), el.get("type")
         where = f"{label}: joint '{name}'"
+        if name in seen_names:
+            raise ParseError(f"{where} is defined twice")
+        seen_names.add(name)
         if jtype not in _KINDS:
             raise ParseError(f"{where} has unsupported type {jtype!r} (supported: {sorted(_KINDS)})")
         try:
@@ -145,7 +163,17 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
             if nrm < 1e-12:
                 raise ParseError(f"{where}: axis is zero")
             axis = axis / nrm
-        joints.append(dict(name=name, kind=_KINDS[jtype], parent=parent, child=child, r0=r0, p0=p0, axis=axis))
+        dyn = el.find("dynamics")
+        damping = _floats(None if dyn is None else dyn.get("damping"), 1, [0.0], f"{where} dynamics damping")[0]
+        friction = _floats(None if dyn is None else dyn.get("friction"), 1, [0.0], f"{where} dynamics friction")[0]
+        if damping < 0 or friction < 0:
+            raise ParseError(f"{where}: dynamics damping and friction must be non-negative, got {damping!r}, "
+                             f"{friction!r}")
+        lim = el.find("limit")
+        limited = jtype in ("revolute", "prismatic") and lim is not None and (
+            lim.get("lower") is not None or lim.get("upper") is not None)
+        joints.append(dict(name=name, kind=_KINDS[jtype], parent=parent, child=child, r0=r0, p0=p0, axis=axis,
+                           damping=damping, friction=friction, limited=limited))
     roots = [ln for ln in links if ln not in parent_joint]
     if len(roots) != 1:
         raise ParseError(f"{label}: expected one root link, found {roots or 'none (kinematic loop)'}")
@@ -178,6 +206,17 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
     if unreached:
         raise ParseError(f"{label}: links {unreached} are not connected to the root '{roots[0]}' (kinematic loop)")
     n = len(movable)
+    if viscous is None and any(jt["damping"] for jt in movable):
+        viscous = [jt["damping"] for jt in movable]
+    if coulomb is None and any(jt["friction"] for jt in movable):
+        coulomb = [jt["friction"] for jt in movable]
+    limited = [jt["name"] for jt in movable if jt["limited"]]
+    if limited and limits == "warn":
+        import warnings
+
+        warnings.warn(f"{label}: joint position limits of {len(limited)} joint(s) are not modelled (e.g. "
+                      f"{', '.join(repr(j) for j in limited[:4])}): the joints move freely past them. Pass "
+                      "limits='ignore' to accept this silently", UnmodelledLimitsWarning, stacklevel=2)
     inertia = np.zeros((n, 10))
     for ln, el in links.items():
         b = owner[ln]
@@ -195,6 +234,9 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
         check_inertia(m, c, i_com, f"link '{ln}'", degenerate_ok=True)
         r, p = pose[ln]
         inertia[b] += _origin_params(m, r @ c + p, r @ i_com @ r.T)
+    # every link merged by a fixed joint (or welded to the world) keeps its name as a frame of its owner
+    moved = {jt["child"] for jt in movable}
+    frames = [(ln, owner[ln], *pose[ln]) for ln in links if ln not in moved]
     try:
         return TreeModel(
             parents=[placement[jt["name"]][0] for jt in movable],
@@ -209,6 +251,7 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
             viscous=viscous,
             coulomb=coulomb,
             rotor_inertia=rotor_inertia,
+            frames=frames,
         )
     except ModelError as e:
         raise type(e)(f"{label}: {e}") from None

@@ -20,7 +20,7 @@ from .dynamics import (
     mass_matrix,
 )
 from .energy import kinetic_energy, link_kinetic_energies, potential_energy
-from .kinematics import link_jacobian, link_jacobians, link_poses, link_velocities, wrench_torques
+from .kinematics import frame_pose, link_jacobian, link_jacobians, link_poses, link_velocities, wrench_torques
 from .model import PRISMATIC, REVOLUTE, TreeModel
 
 __all__ = [
@@ -43,6 +43,7 @@ __all__ = [
     "link_poses",
     "link_velocities",
     "link_jacobian",
+    "frame_pose",
     "link_jacobians",
     "wrench_torques",
 ]

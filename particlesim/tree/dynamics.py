@@ -25,6 +25,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .energy import split_params
 from .kinematics import _mm, _mv, link_poses, world_axes
+from ..errors import ModelError
 from .model import TreeModel
 
 __all__ = [
@@ -48,6 +49,14 @@ class _Bodies(NamedTuple):
     s_v: Array  # (n, 3) linear part (about O_0)
 
 
+
+
+def _check(model: TreeModel, **vectors) -> None:
+    """Each named vector must have shape ``(nq,)`` (static, so this holds under tracing too)."""
+    for name, v in vectors.items():
+        if jnp.shape(v) != (model.nq,):
+            raise ModelError(f"{name} must have shape ({model.nq},) (one entry per joint of this {model.nq}-joint "
+                             f"model), got {jnp.shape(v)}")
 
 
 def _bodies(model: TreeModel, q) -> _Bodies:
@@ -159,6 +168,7 @@ def friction_torques(model: TreeModel, qd: Float[ArrayLike, " n"], *,
 def inverse_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"],
                      qdd: Float[ArrayLike, " n"], *, smooth_friction: Optional[float] = None) -> Float[Array, " n"]:
     """``tau = A qdd + C qd + Q + Gamma_f`` (eqs. 3, 17, 18)."""
+    _check(model, q=q, qd=qd, qdd=qdd)
     qd, qdd = jnp.asarray(qd), jnp.asarray(qdd)
     tau = _rnea(model, _bodies(model, jnp.asarray(q)), qd, qdd, model.gravity)
     if model.rotor_inertia is not None:
@@ -175,6 +185,7 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Arra
     External wrenches enter through ``tau``: add :func:`~.kinematics.wrench_torques` (``J^T f``, eq. 16).
     ``smooth_friction=eps`` replaces ``sign(qd)`` by ``tanh(qd / eps)`` (differentiable at ``qd = 0``).
     """
+    _check(model, q=q, qd=qd, tau=tau)
     qd, tau = jnp.asarray(qd), jnp.asarray(tau)
     b = _bodies(model, jnp.asarray(q))
     rhs = tau - _rnea(model, b, qd, None, model.gravity)

@@ -23,6 +23,7 @@ __all__ = [
     "world_axes",
     "link_jacobians",
     "link_jacobian",
+    "frame_pose",
     "wrench_torques",
 ]
 
@@ -130,8 +131,37 @@ def _frame_rotation(rot, frame: str):
     raise ModelError(f"unknown Jacobian frame {frame!r} (expected 'world' or 'local')")
 
 
+def frame_pose(model: TreeModel, q: Float[ArrayLike, " n"], name) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:
+    """World pose ``(R, p)`` of a link (index or name) or of a frame fixed to one (a URDF link merged by a fixed
+    joint: ``tool0``, ``panda_hand``, ...)."""
+    rot, pos = link_poses(model, q)
+    fr = model.frame(name) if isinstance(name, str) else None
+    if fr is None:
+        j = model.link_index(name)
+        return rot[j], pos[j]
+    owner, r, p = fr
+    if owner < 0:
+        return jnp.asarray(r), jnp.asarray(p)
+    return rot[owner] @ r, pos[owner] + rot[owner] @ p
+
+
 def link_jacobian(model: TreeModel, q: Float[ArrayLike, " n"], link, *, frame: str = "world") -> Float[Array, "6 n"]:
-    """The 6 x n Jacobian of link ``link`` (index or name): ``[v_O; w] = J qd`` in world or link axes (§3)."""
+    """The 6 x n Jacobian of link ``link`` (index or name, or a frame fixed to a link): ``[v_O; w] = J qd`` with
+    ``v_O`` the velocity of its origin, in world or its own axes (§3)."""
+    fr = model.frame(link) if isinstance(link, str) else None
+    if fr is not None:
+        owner, r, p = fr
+        rot, pos = link_poses(model, q)
+        if owner < 0:
+            return jnp.zeros((6, model.nq))
+        jac = link_jacobians(model, rot, pos)[owner]
+        off = rot[owner] @ p  # frame origin from the link origin, world axes: v_f = v_O + w x off
+        skew = jnp.array([[0.0, -off[2], off[1]], [off[2], 0.0, -off[0]], [-off[1], off[0], 0.0]])
+        jac = jnp.concatenate([jac[:3] - skew @ jac[3:], jac[3:]], axis=0)
+        rt = _frame_rotation(rot[owner] @ r, frame)
+        if rt is not None:
+            jac = jnp.concatenate([rt @ jac[:3], rt @ jac[3:]], axis=0)
+        return jac
     j = model.link_index(link)
     rot, pos = link_poses(model, q)
     jac = link_jacobians(model, rot, pos)[j]

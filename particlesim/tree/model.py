@@ -59,6 +59,11 @@ def _vec_param(x, n, name, joint_names) -> Optional[Array]:
         bad = ~np.isfinite(np.asarray(a))
         if bad.any():
             raise ModelError(f"{name} of joint '{joint_names[int(np.argmax(bad))]}' is NaN or inf")
+        neg = np.asarray(a) < 0
+        if neg.any():
+            i = int(np.argmax(neg))
+            raise ModelError(f"{name} of joint '{joint_names[i]}' is negative ({float(np.asarray(a)[i])!r}): it would "
+                             "feed energy in; friction levels and rotor inertias are non-negative")
     return a
 
 
@@ -91,6 +96,7 @@ class TreeModel(eqx.Module):
     kinds: tuple = eqx.field(static=True)
     axes: tuple = eqx.field(static=True)
     origin_rotations: tuple = eqx.field(static=True)
+    frames: tuple = eqx.field(static=True)  # (name, owner link or -1, rotation (9,), translation (3,)) per frame
 
     def __init__(
         self,
@@ -107,12 +113,17 @@ class TreeModel(eqx.Module):
         viscous: Optional[ArrayLike] = None,
         coulomb: Optional[ArrayLike] = None,
         rotor_inertia: Optional[ArrayLike] = None,
+        frames: Optional[Sequence] = None,
     ):
         n = len(parents)
         link_names = tuple(link_names) if link_names is not None else tuple(f"link{i}" for i in range(n))
         joint_names = tuple(joint_names) if joint_names is not None else tuple(f"joint{i}" for i in range(n))
         if len(link_names) != n or len(joint_names) != n:
             raise ModelError(f"need {n} link and joint names, got {len(link_names)} and {len(joint_names)}")
+        for what, names in (("joint", joint_names), ("link", link_names)):
+            dup = [x for i, x in enumerate(names) if x in names[:i]]
+            if dup:
+                raise ModelError(f"{what} name '{dup[0]}' is used twice")
         parents = tuple(int(p) for p in parents)
         for i, p in enumerate(parents):
             if not -1 <= p < n or p == i:
@@ -169,6 +180,7 @@ class TreeModel(eqx.Module):
         self.kinds = kinds
         self.axes = tuple(tuple(float(v) for v in a) for a in ax)
         self.origin_rotations = tuple(tuple(float(v) for v in r.ravel()) for r in rot)
+        self.frames = _frames(frames or (), link_names, n)
 
     # ---- static views (numpy, computed at trace time) ----
     @property
@@ -216,7 +228,16 @@ class TreeModel(eqx.Module):
             return self.link_names.index(link)
         if link in self.joint_names:
             return self.joint_names.index(link)
-        raise ModelError(f"unknown link {link!r}; links are {list(self.link_names)}")
+        frames = [f[0] for f in self.frames]
+        more = f" and frames {frames}" if frames else ""
+        raise ModelError(f"unknown link {link!r}; links are {list(self.link_names)}{more}")
+
+    def frame(self, name) -> tuple | None:
+        """``(owner, R, p)`` of a frame fixed to a link (``owner`` -1: the world), or None if ``name`` is not one."""
+        for f in self.frames:
+            if f[0] == name:
+                return f[1], np.asarray(f[2]).reshape(3, 3), np.asarray(f[3])
+        return None
 
     def with_params(self, **changes) -> "TreeModel":
         """A copy with some array leaves replaced (``inertia=``, ``origin_xyz=``, ``gravity=``, ...), unchecked."""
@@ -227,6 +248,22 @@ class TreeModel(eqx.Module):
         names = list(changes)
         return eqx.tree_at(lambda m: [getattr(m, k) for k in names], self,
                            [jnp.asarray(changes[k], dtype=float) for k in names], is_leaf=lambda x: x is None)
+
+
+def _frames(frames, link_names, n) -> tuple:
+    """Validated frames fixed to links: ``(name, owner, R, p)`` with ``owner`` a link index or -1 (the world)."""
+    out, seen = [], set(link_names)
+    for name, owner, r, p in frames:
+        if name in seen:
+            raise ModelError(f"frame '{name}' is defined twice (or shares a link's name)")
+        seen.add(name)
+        if not -1 <= int(owner) < n:
+            raise ModelError(f"frame '{name}': owner link {owner} is not a link of this model")
+        r, p = np.asarray(r, dtype=float).reshape(3, 3), np.asarray(p, dtype=float).reshape(3)
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(p))) or np.abs(r @ r.T - np.eye(3)).max() > 1e-9:
+            raise ModelError(f"frame '{name}': pose is not finite or not a rotation")
+        out.append((str(name), int(owner), tuple(float(v) for v in r.ravel()), tuple(float(v) for v in p)))
+    return tuple(out)
 
 
 def _topological_order(parents, joint_names) -> tuple:

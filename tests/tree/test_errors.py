@@ -105,3 +105,106 @@ def test_tree_model_refuses_bad_input():
         TreeModel(**_tree_kwargs(viscous=[0.1, np.nan]))
     with pytest.raises(ModelError, match="unknown link 'elbow'"):
         TreeModel(**_tree_kwargs()).link_index("elbow")
+
+
+def test_user_errors_name_the_argument_or_element():
+    import jax.numpy as jnp
+
+    from particlesim.simulate import simulate
+    from particlesim.tree import forward_dynamics, inverse_dynamics
+
+    m = load_urdf(_urdf(GOOD))
+    z = jnp.zeros(2)
+    with pytest.raises(ModelError, match="viscous friction of joint 'j1' is negative"):
+        load_urdf(_urdf(GOOD), viscous=[-1.0, 0.0])
+    with pytest.raises(ModelError, match="Coulomb friction of joint 'j2' is negative"):
+        load_urdf(_urdf(GOOD), coulomb=[0.0, -0.1])
+    with pytest.raises(ParseError, match="joint 'j1' is defined twice"):
+        load_urdf(_urdf(_joint("j1", "revolute", "base", "a") + _joint("j1", "revolute", "a", "b")))
+    with pytest.raises(ModelError, match="joint name 'j' is used twice"):
+        TreeModel(**_tree_kwargs(joint_names=["j", "j"]))
+    with pytest.raises(ParseError, match="the robot has no <link>"):
+        load_urdf('<robot name="empty"></robot>')
+    with pytest.raises(ParseError, match="empty URDF source"):
+        load_urdf("  ")
+    with pytest.raises(ModelError, match="q must have shape \\(2,\\)"):
+        forward_dynamics(m, jnp.zeros(3), z, z)
+    with pytest.raises(ModelError, match="tau must have shape \\(2,\\)"):
+        forward_dynamics(m, z, z, jnp.zeros(1))
+    with pytest.raises(ModelError, match="qdd must have shape \\(2,\\)"):
+        inverse_dynamics(m, z, z, jnp.zeros(4))
+    for bad in (lambda t, q, qd, p: jnp.asarray(1.0), lambda t, q, qd, p: jnp.ones(1)):
+        with pytest.raises(ModelError, match="control returned shape .*no broadcasting"):
+            simulate(forward_dynamics, m, z, z, 0.0, 0.1, control=bad)
+    with pytest.raises(RuntimeError, match="the control returned a non-finite generalised force"):
+        simulate(forward_dynamics, m, z, z, 0.0, 0.1, control=lambda t, q, qd, p: q * jnp.nan)
+    with pytest.raises(ValueError, match="rtol must be positive"):
+        simulate(forward_dynamics, m, z, z, 0.0, 0.1, rtol=-1e-6)
+    with pytest.raises(ValueError, match="t1 must be greater than t0"):
+        simulate(forward_dynamics, m, z, z, 1.0, 0.0)
+    with pytest.raises(ValueError, match="max_steps must be a positive integer"):
+        simulate(forward_dynamics, m, z, z, 0.0, 0.1, max_steps=0)
+
+
+def test_urdf_dynamics_fields_and_limits_against_pinocchio():
+    """``<dynamics damping friction>`` become viscous and Coulomb friction, as Pinocchio reads them into
+    ``model.damping`` and ``model.friction``; limits that are not modelled are said, not dropped silently."""
+    import warnings
+
+    pin = pytest.importorskip("pinocchio")
+    from particlesim.io.urdf import UnmodelledLimitsWarning
+
+    j1 = ('<joint name="j1" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/>'
+          '<limit lower="-1" upper="1" effort="5" velocity="2"/><dynamics damping="0.3" friction="0.2"/></joint>')
+    j2 = ('<joint name="j2" type="revolute"><parent link="a"/><child link="b"/><axis xyz="1 0 0"/>'
+          '<limit lower="-2" upper="2" effort="5" velocity="2"/><dynamics damping="0.05"/></joint>')
+    text = _urdf(j1 + j2)
+    with pytest.warns(UnmodelledLimitsWarning, match="2 joint\\(s\\) are not modelled.*'j1', 'j2'"):
+        m = load_urdf(text)
+    ref = pin.buildModelFromXML(text)
+    np.testing.assert_array_equal(np.asarray(m.viscous), np.asarray(ref.damping))
+    np.testing.assert_array_equal(np.asarray(m.coulomb), np.asarray(ref.friction))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_urdf(text, limits="ignore", viscous=[0.0, 0.0])  # silent when asked; arguments replace the file's
+    with pytest.raises(ParseError, match="joint 'j1': dynamics damping and friction must be non-negative"):
+        load_urdf(_urdf(j1.replace('damping="0.3"', 'damping="-0.3"') + j2), limits="ignore")
+
+
+def test_links_merged_by_fixed_joints_keep_their_frames_as_pinocchio_does():
+    """A tool frame on a fixed joint below a moving link and a frame welded to the world: their poses and
+    Jacobians (world axes, velocity of the frame's origin) against Pinocchio's frames at random states."""
+    import jax.numpy as jnp
+
+    from particlesim.tree import frame_pose, link_jacobian
+
+    pin = pytest.importorskip("pinocchio")
+    tool = ('<link name="tool0"/><joint name="flange" type="fixed"><parent link="b"/><child link="tool0"/>'
+            '<origin xyz="0.1 -0.2 0.3" rpy="0.3 -0.2 0.5"/></joint>'
+            '<link name="mount"/><joint name="bolt" type="fixed"><parent link="base"/><child link="mount"/>'
+            '<origin xyz="0 0 0.5" rpy="0 0 1"/></joint>')
+    lim = '<limit lower="-3" upper="3" effort="1" velocity="1"/>'  # Pinocchio's parser requires limits
+    j = ('<joint name="j1" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/>' + lim +
+         '</joint><joint name="j2" type="revolute"><parent link="a"/><child link="b"/><origin xyz="0 0.4 0.1"/>'
+         '<axis xyz="1 0 0"/>' + lim + '</joint>')
+    text = _urdf(j).replace("</robot>", tool + "</robot>")
+    m = load_urdf(text, limits="ignore")
+    ref = pin.buildModelFromXML(text)
+    data = ref.createData()
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = rng.uniform(-2, 2, 2)
+        pin.computeJointJacobians(ref, data, q)
+        pin.updateFramePlacements(ref, data)
+        for name in ("tool0", "mount", "b"):
+            fid = ref.getFrameId(name)
+            r, p = frame_pose(m, jnp.asarray(q), name)
+            np.testing.assert_allclose(np.asarray(r), data.oMf[fid].rotation, atol=1e-12)
+            np.testing.assert_allclose(np.asarray(p), data.oMf[fid].translation, atol=1e-12)
+            jac = pin.getFrameJacobian(ref, data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            np.testing.assert_allclose(np.asarray(link_jacobian(m, jnp.asarray(q), name)), jac, atol=1e-12)
+            jl = pin.getFrameJacobian(ref, data, fid, pin.ReferenceFrame.LOCAL)
+            np.testing.assert_allclose(np.asarray(link_jacobian(m, jnp.asarray(q), name, frame="local")), jl,
+                                       atol=1e-12)
+    with pytest.raises(ModelError, match="unknown link 'tool9'.*frames \\['base', "):
+        link_jacobian(m, jnp.zeros(2), "tool9")
