@@ -63,7 +63,13 @@ def test_slider_crank_kinematics_match_the_closed_form(crank):
 
 def test_slider_crank_driving_torque_balances_the_kinetic_energy(crank):
     """No gravity, no other load: the driver's power is the rate of the kinetic energy."""
-    mech, _, sol, _, (*_, energy) = crank
+    from particlesim import _ode
+
+    mech, x0, sol, _, (*_, energy) = crank
+    traces = _ode.TRACES["kinematic_analysis"]
+    again = kinematic_analysis(mech, np.asarray(x0) + 1e-4, TS + 0.5)  # new start and times: no new trace
+    assert _ode.TRACES["kinematic_analysis"] == traces
+    assert float(jnp.max(again.residual)) < 1e-14
     t_num = jax.vmap(lambda xd: kinetic_energy(mech, xd))(sol.qd)
     assert float(jnp.max(jnp.abs(t_num - energy))) < ENERGY_TOL
     power = jax.vmap(jax.grad(lambda s: slider_crank_exact(s)[3]))(jnp.asarray(TS))
