@@ -281,3 +281,24 @@ def test_free_pin_in_a_slot_conserves_energy():
     e = jax.vmap(lambda x, v: total_energy(mech, x, v))(sol.q, sol.qd)
     assert float(jnp.ptp(e)) < 1e-10 * 2.5 * 9.81 * 0.4
     assert float(jnp.ptp(sol.q[:, 0])) > 0.05  # it moves
+
+
+def test_slots_and_guides_of_zero_length_are_refused_by_name():
+    mb = MechanismBuilder(planar=True)
+    mb.ground("O", (0.0, 0.0))
+    mb.ground("O'", (0.0, 0.0))
+    mb.particle("A", (1.0, 0.0))
+    mb.particle("A'", (1.5, 0.0))
+    mb.rod("bar", "A", "A'", 1.0)
+    mb.on_line("A", "O", ("O", "O'"), name="slot")
+    with pytest.raises(ModelError, match="slot: the line's direction points 'O' and 'O'' coincide"):
+        mb.build()
+    mb = MechanismBuilder(planar=True)
+    mb.ground("O", (0.0, 0.0))
+    mb.ground("O'", (0.0, 0.0))
+    mb.particle("A", (1.0, 0.0))
+    mb.particle("A'", (1.5, 0.0))
+    mb.rod("bar", "A", "A'", 1.0)
+    mb.prismatic(("O", "O'"), ("A", "A'"), name="guide")
+    with pytest.raises(ModelError, match="guide: the guide's axis points 'O' and 'O'' coincide"):
+        mb.build()
