@@ -192,7 +192,7 @@ def simulate(
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:
         raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
     coulomb = getattr(params, "coulomb", None)
-    names = getattr(params, "joint_names", None) or tuple(f"joint{i}" for i in range(q0.shape[0]))
+    names = getattr(params, "coordinate_names", None) or getattr(params, "joint_names", None) or tuple(f"joint{i}" for i in range(q0.shape[0]))
     switch: tuple = ()
     if coulomb is not None:
         # the joints whose friction switches: those with a non-zero Coulomb level (all of them when traced)

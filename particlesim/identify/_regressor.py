@@ -28,8 +28,7 @@ N_PER_JOINT = 13
 def _rigid(model: TreeModel, q, qd, qdd):
     def tau(inertia):
         return inverse_dynamics(model.with_params(inertia=inertia), q, qd, qdd)
-    n = model.nq
-    return jax.jacfwd(tau)(model.inertia).reshape(n, 10 * n)
+    return jax.jacfwd(tau)(model.inertia).reshape(model.nq, 10 * model.n_joints)
 
 
 def rigid_regressor(model: TreeModel, q: Float[ArrayLike, "N n"], qd: Float[ArrayLike, "N n"],
@@ -65,10 +64,11 @@ def regressor(model: TreeModel, q, qd, qdd, *, eps: float, rigid=None) -> Float[
 
 def model_with_params(model: TreeModel, pi: Float[ArrayLike, " 13n"]) -> TreeModel:
     """``model`` with inertia, rotor inertia and friction taken from ``pi`` (unchecked; traceable)."""
-    n = model.nq
+    n, nl = model.nq, model.n_joints
     pi = jnp.asarray(pi)
+    r = 10 * nl
     return eqx.tree_at(lambda m: (m.inertia, m.rotor_inertia, m.viscous, m.coulomb), model,
-                       (pi[:10 * n].reshape(n, 10), pi[10 * n:11 * n], pi[11 * n:12 * n], pi[12 * n:]),
+                       (pi[:r].reshape(nl, 10), pi[r:r + n], pi[r + n:r + 2 * n], pi[r + 2 * n:]),
                        is_leaf=lambda x: x is None)
 
 

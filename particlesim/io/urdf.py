@@ -11,7 +11,10 @@ URDF conventions (ROS): a joint places its child at ``origin`` (``xyz``, then ``
 followed by the joint motion about/along ``axis`` (child frame, normalised here); ``<inertial>`` gives the mass,
 the CoM pose in the link frame and the inertia about the CoM in the axes of that pose.
 
-Joint order of the model = the document order of the movable joints.
+Joint order of the model = the document order of the movable joints. A joint with ``<mimic joint= multiplier=
+offset=>`` follows its source (``q = multiplier q_source + offset``) and has no coordinate of its own (as
+Pinocchio's ``mimic=True``); its damping, friction and rotor inertia are folded exactly into the source's
+(``multiplier^2 Fv``, ``|multiplier| Fc``). ``mimic=False`` keeps every mimic joint as an independent joint.
 """
 
 from __future__ import annotations
@@ -110,12 +113,14 @@ class UnmodelledLimitsWarning(UserWarning):
 
 
 def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, viscous=None, coulomb=None,
-              rotor_inertia=None, limits: str = "warn") -> TreeModel:
+              rotor_inertia=None, limits: str = "warn", mimic: bool = True) -> TreeModel:
     """Build a :class:`TreeModel` from a URDF file path or a URDF XML string.
 
     ``gravity`` is in the frame of the root link. Joint friction: the file's ``<dynamics damping=... friction=...>``
     become the model's ``viscous`` (N m s/rad) and ``coulomb`` (N m) levels (eq. 17) unless given here (an
-    argument replaces the file's values for every joint); ``rotor_inertia`` (eq. 18) is not a URDF field. Joint
+    argument replaces the file's values for every joint); ``rotor_inertia`` (eq. 18) is not a URDF field; these arguments have one entry per coordinate. ``mimic=True``
+    (default) reduces ``<mimic>`` joints to their sources (``model.nq`` counts coordinates, ``model.n_joints``
+    joints); ``mimic=False`` keeps them independent. Joint
     position limits are not modelled: ``limits="warn"`` (default) warns (:class:`UnmodelledLimitsWarning`) naming
     the limited joints, ``"ignore"`` accepts that silently. Raises :class:`ParseError` naming the link/joint for
     unparsable files, unsupported joint types, duplicate names, kinematic loops, missing inertials on moving
@@ -169,11 +174,21 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
         if damping < 0 or friction < 0:
             raise ParseError(f"{where}: dynamics damping and friction must be non-negative, got {damping!r}, "
                              f"{friction!r}")
+        mim = el.find("mimic")
+        follows = None
+        if mim is not None and mimic and _KINDS[jtype] is not None:
+            if mim.get("joint") is None:
+                raise ParseError(f"{where}: <mimic> has no joint= attribute")
+            if mim.get("joint") == name:
+                raise ParseError(f"{where} mimics itself")
+            follows = (mim.get("joint"),
+                       _floats(mim.get("multiplier"), 1, [1.0], f"{where} mimic multiplier")[0],
+                       _floats(mim.get("offset"), 1, [0.0], f"{where} mimic offset")[0])
         lim = el.find("limit")
         limited = jtype in ("revolute", "prismatic") and lim is not None and (
             lim.get("lower") is not None or lim.get("upper") is not None)
         joints.append(dict(name=name, kind=_KINDS[jtype], parent=parent, child=child, r0=r0, p0=p0, axis=axis,
-                           damping=damping, friction=friction, limited=limited))
+                           damping=damping, friction=friction, limited=limited, mimic=follows))
     roots = [ln for ln in links if ln not in parent_joint]
     if len(roots) != 1:
         raise ParseError(f"{label}: expected one root link, found {roots or 'none (kinematic loop)'}")
@@ -206,10 +221,27 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
     if unreached:
         raise ParseError(f"{label}: links {unreached} are not connected to the root '{roots[0]}' (kinematic loop)")
     n = len(movable)
-    if viscous is None and any(jt["damping"] for jt in movable):
-        viscous = [jt["damping"] for jt in movable]
-    if coulomb is None and any(jt["friction"] for jt in movable):
-        coulomb = [jt["friction"] for jt in movable]
+    mimics = {jt["name"]: jt["mimic"] for jt in movable if jt["mimic"] is not None}
+    for name, (src, _, _) in mimics.items():
+        if src not in index:
+            raise ParseError(f"{label}: joint '{name}' mimics '{src}', which is not a movable joint of the file")
+    coords = [jt for jt in movable if jt["mimic"] is None]
+    damping = {jt["name"]: jt["damping"] for jt in coords}
+    friction = {jt["name"]: jt["friction"] for jt in coords}
+    for jt in movable:  # a mimic joint's bearing acts on its source: G^T diag(F) G
+        if jt["mimic"] is not None:
+            src, mult, seen = jt["mimic"][0], jt["mimic"][1], {jt["name"]}
+            while src in mimics:
+                if src in seen:
+                    raise ParseError(f"{label}: mimic joints {sorted(seen)} follow each other in a cycle")
+                seen.add(src)
+                src, mult = mimics[src][0], mult * mimics[src][1]
+            damping[src] += mult * mult * jt["damping"]
+            friction[src] += abs(mult) * jt["friction"]
+    if viscous is None and any(damping.values()):
+        viscous = [damping[jt["name"]] for jt in coords]
+    if coulomb is None and any(friction.values()):
+        coulomb = [friction[jt["name"]] for jt in coords]
     limited = [jt["name"] for jt in movable if jt["limited"]]
     if limited and limits == "warn":
         import warnings
@@ -252,6 +284,7 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
             coulomb=coulomb,
             rotor_inertia=rotor_inertia,
             frames=frames,
+            mimic=mimics,
         )
     except ModelError as e:
         raise type(e)(f"{label}: {e}") from None

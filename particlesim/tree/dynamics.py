@@ -94,7 +94,7 @@ def _mass_matrix(model: TreeModel, b: _Bodies) -> Array:
     fn, ff = _apply_inertia(mc, hc, jc, b.s_w, b.s_v)  # (i, 3): composite momentum of unit motion of joint i
     g = jnp.sum(b.s_w[:, None, :] * fn[None, :, :] + b.s_v[:, None, :] * ff[None, :, :], -1)  # g[k, i]
     lower = g * sup.T  # keep k ancestor-or-self of i
-    a = lower + lower.T - jnp.diag(jnp.diagonal(g))
+    a = model.coordinate_matrix(lower + lower.T - jnp.diag(jnp.diagonal(g)))
     if model.rotor_inertia is not None:
         a = a + jnp.diag(model.rotor_inertia)
     return a
@@ -102,7 +102,9 @@ def _mass_matrix(model: TreeModel, b: _Bodies) -> Array:
 
 def _rnea(model: TreeModel, b: _Bodies, qd, qdd, gravity) -> Array:
     """``sum_j J_j^T (M_j a_j + v_j x* M_j v_j)`` with ``a_j`` from ``qdd``, velocity products and ``-gravity``."""
-    n = model.nq
+    n = model.n_joints
+    qd = None if qd is None else model.joint_values(qd, offset=False)
+    qdd = None if qdd is None else model.joint_values(qdd, offset=False)
     sup = jnp.asarray(model.support, dtype=b.m.dtype)
     acc_w = jnp.zeros((n, 3))
     acc_v = jnp.zeros((n, 3)) if gravity is None else jnp.broadcast_to(-gravity, (n, 3))
@@ -126,7 +128,7 @@ def _rnea(model: TreeModel, b: _Bodies, qd, qdd, gravity) -> Array:
         fn = fn + jnp.cross(vw, pn) + jnp.cross(vv, pf)  # v x* (M v)
         ff = ff + jnp.cross(vw, pf)
     sub = sup.T @ jnp.concatenate([fn, ff], axis=1)  # force transmitted by each joint
-    return jnp.sum(b.s_w * sub[:, :3] + b.s_v * sub[:, 3:], -1)
+    return model.coordinate_forces(jnp.sum(b.s_w * sub[:, :3] + b.s_v * sub[:, 3:], -1))
 
 
 def mass_matrix(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Array, "n n"]:

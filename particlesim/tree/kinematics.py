@@ -39,8 +39,10 @@ def _mv(a, x):
 
 
 def joint_transforms(model: TreeModel, q: Float[ArrayLike, " n"]):
-    """Parent-from-child poses ``(R (n,3,3), p (n,3))`` of every joint at ``q`` (the report's ``^iT_j``), vectorised."""
-    q = jnp.asarray(q)
+    """Parent-from-child poses ``(R (n,3,3), p (n,3))`` of every joint at ``q`` (the report's ``^iT_j``), vectorised.
+
+    ``q`` holds the model's coordinates (mimic joints follow their sources)."""
+    q = model.joint_values(jnp.asarray(q))
     ax = model.axes_array
     rev = model.is_revolute
     r0 = jnp.asarray(model.origin_rotation_array)
@@ -58,7 +60,7 @@ def joint_transforms(model: TreeModel, q: Float[ArrayLike, " n"]):
 def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
     """World poses ``(R (n,3,3), p (n,3))`` of all link frames (forward kinematics, parents first)."""
     r_rel, p_rel = joint_transforms(model, q)
-    rs, ps = [None] * model.nq, [None] * model.nq
+    rs, ps = [None] * model.n_joints, [None] * model.n_joints
     for i in model.topological_order:
         k = model.parents[i]
         if k < 0:
@@ -75,11 +77,11 @@ def link_velocities(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Array
     The recursion of Zafar eqs. (7)–(8): ``w_j = A_ji w_i + e_j qd_j`` and ``V_j = A_ji (V_i + w_i x P_j)``
     (plus ``e_j qd_j`` for a prismatic joint), with ``A_ji = (^iA_j)^T`` and ``P_j`` the origin of ``j`` in ``i``.
     """
-    qd = jnp.asarray(qd)
+    qd = model.joint_values(jnp.asarray(qd), offset=False)
     r_rel, p_rel = joint_transforms(model, q)
     e = jnp.asarray(model.axes_array)
     rev = model.is_revolute
-    ws, vs = [None] * model.nq, [None] * model.nq
+    ws, vs = [None] * model.n_joints, [None] * model.n_joints
     for j in model.topological_order:
         i = model.parents[j]
         a_ji = r_rel[j].T
@@ -101,8 +103,9 @@ def world_axes(model: TreeModel, rot: Float[Array, "n 3 3"]) -> Float[Array, "n 
     return _mv(rot, jnp.asarray(model.axes_array))
 
 
-def link_jacobians(model: TreeModel, rot, pos) -> Float[Array, "n 6 n"]:
+def link_jacobians(model: TreeModel, rot, pos) -> Float[Array, "n 6 nq"]:
     """World-axes Jacobians of all link origins from poses, vectorised with the static support mask (§3).
+    Columns are the model's coordinates (a mimic joint's column is added to its source's, times the multiplier).
 
     Column ``k`` of ``J_j``: ``[a_k x (p_j - p_k); a_k]`` (revolute) or ``[a_k; 0]`` (prismatic) if joint ``k`` moves
     link ``j``, else zero.
@@ -120,7 +123,10 @@ def link_jacobians(model: TreeModel, rot, pos) -> Float[Array, "n 6 n"]:
         lin = rv * jnp.cross(ak, r) + (1.0 - rv) * ak
         ang = rv * ak
     jac = jnp.concatenate([lin, ang], axis=-1) * mask[:, :, None]  # (j, k, 6)
-    return jnp.swapaxes(jac, 1, 2)
+    jac = jnp.swapaxes(jac, 1, 2)
+    if any(model.mimic):
+        jac = jac @ jnp.asarray(model.coordinate_map[0])  # joint columns -> coordinate columns
+    return jac
 
 
 def _frame_rotation(rot, frame: str):

@@ -16,8 +16,14 @@ Differentiable ``jax.Array`` leaves:
   origin, in link axes (Zafar §5.1, eq. 11 uses ``J_j`` about the origin);
 * ``origin_xyz`` ``(n, 3)``: ``p0_i``, the joint origin in the parent frame (geometric lengths, e.g. L1..L9);
 * ``gravity`` ``(3,)`` in the world frame;
-* optional per-joint ``viscous`` (``Fv``), ``coulomb`` (``Fc``) (eq. 17) and ``rotor_inertia`` (``I_a = N^2 J_m``,
-  eq. 18). ``None`` means absent: the code path is skipped at trace time and costs nothing.
+* optional per-coordinate ``viscous`` (``Fv``), ``coulomb`` (``Fc``) (eq. 17) and ``rotor_inertia``
+  (``I_a = N^2 J_m``, eq. 18). ``None`` means absent: the code path is skipped at trace time and costs nothing.
+
+Mimic joints (URDF ``<mimic>``, Pinocchio's ``mimic=True``): joint ``i`` may follow another joint ``s`` as
+``q_i = multiplier * q_s + offset``. It then has no coordinate of its own: the model's coordinates ``q`` (length
+``nq``) are those of the independent joints in joint order (``coordinate_names``), and every function maps them to
+the ``n_joints`` joint values with the constant affine map ``q_joint = G q + offset`` and projects joint torques back
+with ``G^T`` (so ``A = G^T A_joint G``: an exact reduction, not a constraint).
 
 Batches of parameter sets: build models with the same topology, stack them with
 ``jax.tree.map(lambda *x: jnp.stack(x), *models)`` and map with ``jax.vmap(f, in_axes=(0, None, ...))``.
@@ -97,6 +103,7 @@ class TreeModel(eqx.Module):
     axes: tuple = eqx.field(static=True)
     origin_rotations: tuple = eqx.field(static=True)
     frames: tuple = eqx.field(static=True)  # (name, owner link or -1, rotation (9,), translation (3,)) per frame
+    mimic: tuple = eqx.field(static=True)  # per joint: () or (source joint index, multiplier, offset)
 
     def __init__(
         self,
@@ -114,6 +121,7 @@ class TreeModel(eqx.Module):
         coulomb: Optional[ArrayLike] = None,
         rotor_inertia: Optional[ArrayLike] = None,
         frames: Optional[Sequence] = None,
+        mimic: Optional[dict] = None,
     ):
         n = len(parents)
         link_names = tuple(link_names) if link_names is not None else tuple(f"link{i}" for i in range(n))
@@ -168,12 +176,14 @@ class TreeModel(eqx.Module):
         if _concrete(inr):
             for i in range(n):
                 origin_params_check(np.asarray(inr[i]), f"link '{link_names[i]}'")
+        self.mimic = _mimic(mimic or {}, joint_names)
+        coords = tuple(joint_names[i] for i in range(n) if not self.mimic[i])
         self.inertia = inr
         self.origin_xyz = xyz
         self.gravity = g
-        self.viscous = _vec_param(viscous, n, "viscous friction", joint_names)
-        self.coulomb = _vec_param(coulomb, n, "Coulomb friction", joint_names)
-        self.rotor_inertia = _vec_param(rotor_inertia, n, "rotor inertia", joint_names)
+        self.viscous = _vec_param(viscous, len(coords), "viscous friction", coords)
+        self.coulomb = _vec_param(coulomb, len(coords), "Coulomb friction", coords)
+        self.rotor_inertia = _vec_param(rotor_inertia, len(coords), "rotor inertia", coords)
         self.link_names = link_names
         self.joint_names = joint_names
         self.parents = parents
@@ -184,18 +194,62 @@ class TreeModel(eqx.Module):
 
     # ---- static views (numpy, computed at trace time) ----
     @property
-    def nq(self) -> int:
+    def n_joints(self) -> int:
+        """Number of links = joints (mimic joints included)."""
         return len(self.parents)
+
+    @property
+    def nq(self) -> int:
+        """Number of coordinates (joints that do not mimic another)."""
+        return sum(1 for m in self.mimic if not m)
+
+    @property
+    def coordinate_names(self) -> tuple:
+        """Names of the joints that own a coordinate, in the order of ``q``."""
+        return tuple(name for name, m in zip(self.joint_names, self.mimic) if not m)
+
+    @property
+    def coordinate_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(G (n_joints, nq), offset (n_joints,))`` with joint values ``G q + offset``."""
+        col = np.cumsum([not m for m in self.mimic]) - 1
+        g, off = np.zeros((self.n_joints, self.nq)), np.zeros(self.n_joints)
+        for i, m in enumerate(self.mimic):
+            if m:
+                g[i, col[m[0]]], off[i] = m[1], m[2]
+            else:
+                g[i, col[i]] = 1.0
+        return g, off
+
+    def joint_values(self, q, *, offset: bool = True):
+        """Joint positions (``offset=True``) or velocities/accelerations (``False``) from coordinates ``q``."""
+        if not any(self.mimic):
+            return q
+        g, off = self.coordinate_map
+        out = jnp.asarray(g) @ q
+        return out + jnp.asarray(off) if offset else out
+
+    def coordinate_forces(self, tau):
+        """Joint forces/torques ``(n_joints,)`` projected onto the coordinates, ``G^T tau``."""
+        if not any(self.mimic):
+            return tau
+        return jnp.asarray(self.coordinate_map[0]).T @ tau
+
+    def coordinate_matrix(self, a):
+        """A joint-space matrix ``(n_joints, n_joints)`` reduced to the coordinates, ``G^T A G``."""
+        if not any(self.mimic):
+            return a
+        g = jnp.asarray(self.coordinate_map[0])
+        return g.T @ a @ g
 
     @property
     def axes_array(self) -> np.ndarray:
         """``(n, 3)`` joint axes in the child link frames."""
-        return np.asarray(self.axes, dtype=float).reshape(self.nq, 3)
+        return np.asarray(self.axes, dtype=float).reshape(self.n_joints, 3)
 
     @property
     def origin_rotation_array(self) -> np.ndarray:
         """``(n, 3, 3)`` constant rotations ``R0_i`` of the joint frames in the parent frames."""
-        return np.asarray(self.origin_rotations, dtype=float).reshape(self.nq, 3, 3)
+        return np.asarray(self.origin_rotations, dtype=float).reshape(self.n_joints, 3, 3)
 
     @property
     def is_revolute(self) -> np.ndarray:
@@ -209,7 +263,7 @@ class TreeModel(eqx.Module):
     @property
     def support(self) -> np.ndarray:
         """``(n, n)`` static mask: ``support[j, k]`` is True iff joint ``k`` moves link ``j`` (k is j or an ancestor)."""
-        n = self.nq
+        n = self.n_joints
         s = np.zeros((n, n), dtype=bool)
         for j in range(n):
             k = j
@@ -221,8 +275,8 @@ class TreeModel(eqx.Module):
     def link_index(self, link) -> int:
         """Index of ``link`` given by index or by link name (or by the name of its joint)."""
         if isinstance(link, (int, np.integer)):
-            if not 0 <= int(link) < self.nq:
-                raise ModelError(f"link index {link} out of range for a model with {self.nq} links")
+            if not 0 <= int(link) < self.n_joints:
+                raise ModelError(f"link index {link} out of range for a model with {self.n_joints} links")
             return int(link)
         if link in self.link_names:
             return self.link_names.index(link)
@@ -248,6 +302,43 @@ class TreeModel(eqx.Module):
         names = list(changes)
         return eqx.tree_at(lambda m: [getattr(m, k) for k in names], self,
                            [jnp.asarray(changes[k], dtype=float) for k in names], is_leaf=lambda x: x is None)
+
+
+def _mimic(mimic: dict, joint_names) -> tuple:
+    """Validated mimic map ``{joint: (source joint, multiplier, offset)}`` -> per joint ``()`` or
+    ``(source index, multiplier, offset)``; chains (a mimic of a mimic) are composed down to their source."""
+    if not isinstance(mimic, dict):
+        raise ModelError("mimic must be a dict {joint name: (source joint name, multiplier, offset)}")
+    raw = {}
+    for name, spec in mimic.items():
+        if name not in joint_names:
+            raise ModelError(f"mimic: unknown joint {name!r}; joints are {list(joint_names)}")
+        try:
+            src, mult, off = spec
+            mult, off = float(mult), float(off)
+        except (TypeError, ValueError):
+            raise ModelError(f"mimic joint '{name}': expected (source joint, multiplier, offset), got {spec!r}") from None
+        if src not in joint_names:
+            raise ModelError(f"mimic joint '{name}' follows unknown joint {src!r}")
+        if src == name:
+            raise ModelError(f"mimic joint '{name}' follows itself")
+        if not (np.isfinite(mult) and np.isfinite(off)):
+            raise ModelError(f"mimic joint '{name}': multiplier and offset must be finite, got {mult!r}, {off!r}")
+        raw[name] = (src, mult, off)
+    out = []
+    for i, name in enumerate(joint_names):
+        if name not in raw:
+            out.append(())
+            continue
+        src, mult, off, seen = *raw[name], {name}
+        while src in raw:  # compose q = m1 (m2 q_s + o2) + o1
+            if src in seen:
+                raise ModelError(f"mimic joints {sorted(seen)} follow each other in a cycle")
+            seen.add(src)
+            s2, m2, o2 = raw[src]
+            src, mult, off = s2, mult * m2, mult * o2 + off
+        out.append((joint_names.index(src), mult, off))
+    return tuple(out)
 
 
 def _frames(frames, link_names, n) -> tuple:

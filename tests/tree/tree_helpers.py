@@ -67,16 +67,17 @@ def random_tree_urdf(seed: int, n: int, *, prismatic: float = 0.3, fixed_extra: 
 class PinocchioOracle:
     """Pinocchio on the same URDF, evaluated in the joint order of a particlesim model (matched by name)."""
 
-    def __init__(self, urdf, joint_names, gravity):
+    def __init__(self, urdf, joint_names, gravity, *, mimic: bool = False):
         import pinocchio as pin
 
         self.pin = pin
         if urdf.lstrip().startswith("<"):
-            self.model = pin.buildModelFromXML(urdf)
+            self.model = pin.buildModelFromXML(urdf, mimic=mimic)
         else:
-            self.model = pin.buildModelFromUrdf(str(urdf))
+            self.model = pin.buildModelFromUrdf(str(urdf), mimic=mimic)
         self.model.gravity.linear = np.asarray(gravity, dtype=float)
         self.data = self.model.createData()
+        self.mimic = mimic
         joints = [self.model.joints[self.model.getJointId(n)] for n in joint_names]
         self.idx = np.array([j.idx_v for j in joints])  # velocity index (continuous joints use (cos, sin) in q)
         self.idx_q = [(j.idx_q, j.nq) for j in joints]
@@ -93,7 +94,10 @@ class PinocchioOracle:
 
     def mass_matrix(self, q):
         qp, _ = self._qv(q)
-        m = self.pin.crba(self.model, self.data, qp)
+        # Pinocchio 4.1's crba on a model with mimic joints depends on what an earlier call left in its Data
+        # (a second call at another q differs by O(1) from rnea's columns): give it a fresh Data each time
+        data = self.model.createData() if self.mimic else self.data
+        m = self.pin.crba(self.model, data, qp)
         m = np.triu(m) + np.triu(m, 1).T
         return m[np.ix_(self.idx, self.idx)]
 
