@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["ModelError", "InertiaError", "PlacementError", "NegativeMassWarning", "ParseError"]
+__all__ = ["ModelError", "InertiaError", "PlacementError", "NegativeMassWarning", "ParseError", "InertiaWarning"]
 
 
 class ModelError(ValueError):
@@ -23,3 +23,8 @@ class ParseError(ModelError):
 
 class NegativeMassWarning(UserWarning):
     """An equivalent particle received a negative mass: the dynamics stay exact, physical consistency is lost."""
+
+
+class InertiaWarning(UserWarning):
+    """A model file's inertia is not physical and was loaded anyway (``inertia="warn"``) or repaired
+    (``inertia="balance"``); the message names every such link."""

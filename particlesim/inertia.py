@@ -30,12 +30,18 @@ __all__ = [
     "second_moment_from_inertia",
     "inertia_from_second_moment",
     "check_inertia",
+    "balance_inertia",
     "rotate_origin_params",
     "PHYSICAL_RTOL",
+    "POINT_RADIUS",
 ]
 
 #: Relative slack (w.r.t. the trace) allowed on triangle inequalities and on zero principal moments.
 PHYSICAL_RTOL = 1e-9
+#: Radius of gyration (m) below which a body counts as a point mass: the slack is taken relative to
+#: ``max(trace, mass * POINT_RADIUS**2)``, so a rounded zero tensor (a -2e-35 principal moment) is not judged against
+#: a zero trace.
+POINT_RADIUS = 1e-6
 
 
 def inertia_about_point(i_com, mass, com, point) -> Float[Array, "3 3"]:
@@ -109,7 +115,7 @@ def check_inertia(mass, com, inertia, name: str = "body", *, degenerate_ok: bool
             raise InertiaError(f"{name}: {label} contains NaN or inf: {x.tolist()}")
     if not m > 0:
         raise InertiaError(f"{name}: mass must be positive, got {float(m)!r}")
-    scale = max(float(np.trace(i)), np.finfo(float).tiny)
+    scale = max(float(np.trace(i)), float(m) * POINT_RADIUS**2, np.finfo(float).tiny)
     if not np.allclose(i, i.T, rtol=0.0, atol=PHYSICAL_RTOL * scale):
         raise InertiaError(f"{name}: inertia tensor is not symmetric: {i.tolist()}")
     eig = np.linalg.eigvalsh(0.5 * (i + i.T))
@@ -128,6 +134,24 @@ def check_inertia(mass, com, inertia, name: str = "body", *, degenerate_ok: bool
                 f"{name}: principal moments {eig.tolist()} violate the triangle inequality "
                 f"(I{k + 1} = {eig[k]:.6g} > sum of the other two = {others:.6g})"
             )
+
+
+def balance_inertia(inertia) -> tuple[np.ndarray, bool]:
+    """``(repaired tensor, changed)``: MuJoCo's ``balanceinertia`` repair of an inertia about the CoM.
+
+    Negative principal moments are first clipped to zero; then, if the principal moments violate a triangle
+    inequality ``I_k <= I_i + I_j`` (beyond :data:`PHYSICAL_RTOL`), all three are replaced by their mean (an
+    isotropic tensor, as MuJoCo does). A physical tensor is returned unchanged.
+    """
+    i = 0.5 * (np.asarray(inertia, dtype=float) + np.asarray(inertia, dtype=float).T)
+    eig, vec = np.linalg.eigh(i)
+    clipped = np.maximum(eig, 0.0)
+    tol = PHYSICAL_RTOL * max(float(clipped.sum()), np.finfo(float).tiny)
+    if clipped[2] > clipped[0] + clipped[1] + tol:
+        return np.eye(3) * clipped.mean(), True
+    if np.any(eig < 0.0) and eig[0] < -tol:
+        return vec @ np.diag(clipped) @ vec.T, True
+    return np.asarray(inertia, dtype=float), False
 
 
 class RigidInertia(eqx.Module):

@@ -26,8 +26,8 @@ from typing import Optional, Union
 
 import numpy as np
 
-from ..errors import ModelError, ParseError
-from ..inertia import check_inertia
+from ..errors import InertiaError, InertiaWarning, ModelError, ParseError
+from ..inertia import balance_inertia, check_inertia
 from ..spatial import rpy_to_matrix
 from ..tree.model import PRISMATIC, REVOLUTE, TreeModel
 
@@ -113,7 +113,7 @@ class UnmodelledLimitsWarning(UserWarning):
 
 
 def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, viscous=None, coulomb=None,
-              rotor_inertia=None, limits: str = "warn", mimic: bool = True) -> TreeModel:
+              rotor_inertia=None, limits: str = "warn", mimic: bool = True, inertia: str = "strict") -> TreeModel:
     """Build a :class:`TreeModel` from a URDF file path or a URDF XML string.
 
     ``gravity`` is in the frame of the root link. Joint friction: the file's ``<dynamics damping=... friction=...>``
@@ -123,11 +123,21 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
     joints); ``mimic=False`` keeps them independent. Joint
     position limits are not modelled: ``limits="warn"`` (default) warns (:class:`UnmodelledLimitsWarning`) naming
     the limited joints, ``"ignore"`` accepts that silently. Raises :class:`ParseError` naming the link/joint for
-    unparsable files, unsupported joint types, duplicate names, kinematic loops, missing inertials on moving
-    links, and :class:`~particlesim.errors.InertiaError` for non-physical inertias.
+    unparsable files, unsupported joint types, duplicate names and kinematic loops.
+
+    Inertias: a link without ``<inertial>`` (or with zero mass and inertia) is massless, accepted as long as every
+    joint moves some mass (the usual way to write a spherical joint as three revolutes). ``inertia="strict"``
+    (default) raises :class:`~particlesim.errors.InertiaError` naming the link for a non-physical inertia (negative
+    or zero mass with inertia, a tensor that is not positive semi-definite, principal moments violating a triangle
+    inequality); ``"balance"`` repairs such tensors as MuJoCo's ``balanceinertia`` does (negative principal moments
+    clipped to zero, then all three set to their mean if a triangle inequality fails) and ``"warn"`` loads them
+    unchanged; both warn (:class:`~particlesim.errors.InertiaWarning`) naming every such link. Negative or zero
+    masses with a nonzero tensor are refused in every mode.
     """
     if limits not in ("warn", "ignore"):
         raise ValueError(f"limits must be 'warn' or 'ignore', got {limits!r}")
+    if inertia not in ("strict", "balance", "warn"):
+        raise ValueError(f"inertia must be 'strict', 'balance' or 'warn', got {inertia!r}")
     label, root = read_urdf(source)
     links = {}
     for el in root.findall("link"):
@@ -249,23 +259,34 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
         warnings.warn(f"{label}: joint position limits of {len(limited)} joint(s) are not modelled (e.g. "
                       f"{', '.join(repr(j) for j in limited[:4])}): the joints move freely past them. Pass "
                       "limits='ignore' to accept this silently", UnmodelledLimitsWarning, stacklevel=2)
-    inertia = np.zeros((n, 10))
+    params = np.zeros((n, 10))
+    flagged = []
     for ln, el in links.items():
         b = owner[ln]
-        moved_by = [jt["name"] for jt in movable if jt["child"] == ln]
         data = _inertial(el, ln)
-        if data is None:
-            if moved_by:
-                raise ParseError(f"{label}: link '{ln}' is moved by joint '{moved_by[0]}' but has no <inertial>")
-            continue
-        if b < 0:
-            continue  # welded to the world: no dynamics
+        if data is None or b < 0:
+            continue  # massless, or welded to the world (no dynamics)
         m, c, i_com = data
         if m == 0.0 and not np.any(i_com):
             continue  # an explicitly massless link
-        check_inertia(m, c, i_com, f"link '{ln}'", degenerate_ok=True)
+        try:
+            check_inertia(m, c, i_com, f"link '{ln}'", degenerate_ok=True)
+        except InertiaError as e:
+            if inertia == "strict" or not m > 0:
+                hint = "" if not m > 0 else " (inertia='balance' repairs it as MuJoCo's balanceinertia, 'warn' loads it)"
+                raise InertiaError(f"{label}: {e}{hint}") from None
+            if inertia == "balance":
+                i_com, _ = balance_inertia(i_com)
+                check_inertia(m, c, i_com, f"link '{ln}' (balanced)", degenerate_ok=True)
+            flagged.append(ln)
         r, p = pose[ln]
-        inertia[b] += _origin_params(m, r @ c + p, r @ i_com @ r.T)
+        params[b] += _origin_params(m, r @ c + p, r @ i_com @ r.T)
+    if flagged:
+        import warnings
+
+        what = "repaired (principal moments balanced)" if inertia == "balance" else "loaded unchanged"
+        warnings.warn(f"{label}: non-physical inertia of {len(flagged)} link(s) {what}: "
+                      f"{', '.join(repr(x) for x in flagged)}", InertiaWarning, stacklevel=2)
     # every link merged by a fixed joint (or welded to the world) keeps its name as a frame of its owner
     moved = {jt["child"] for jt in movable}
     frames = [(ln, owner[ln], *pose[ln]) for ln in links if ln not in moved]
@@ -276,7 +297,7 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
             axes=np.array([jt["axis"] for jt in movable]).reshape(n, 3),
             origin_rotations=np.array([placement[jt["name"]][1] for jt in movable]).reshape(n, 3, 3),
             origin_xyz=np.array([placement[jt["name"]][2] for jt in movable]).reshape(n, 3),
-            inertia=inertia,
+            inertia=params,
             gravity=gravity,
             link_names=[jt["child"] for jt in movable],
             joint_names=[jt["name"] for jt in movable],
@@ -285,6 +306,7 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
             rotor_inertia=rotor_inertia,
             frames=frames,
             mimic=mimics,
+            validate_inertia=inertia != "warn",
         )
     except ModelError as e:
         raise type(e)(f"{label}: {e}") from None

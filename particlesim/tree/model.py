@@ -74,10 +74,13 @@ def _vec_param(x, n, name, joint_names) -> Optional[Array]:
 
 
 def origin_params_check(params, name: str) -> None:
-    """Raise :class:`InertiaError` naming ``name`` unless the 10-vector (about the origin) is a physical body."""
+    """Raise :class:`InertiaError` naming ``name`` unless the 10-vector (about the origin) is a physical body or
+    exactly zero (a massless link, e.g. between the revolutes that make up a spherical joint)."""
     p = np.asarray(params, dtype=float)
     if not np.all(np.isfinite(p)):
         raise InertiaError(f"{name}: inertial parameters contain NaN or inf: {p.tolist()}")
+    if not np.any(p):
+        return
     m = p[0]
     if not m > 0:
         raise InertiaError(f"{name}: mass must be positive, got {m!r}")
@@ -122,6 +125,7 @@ class TreeModel(eqx.Module):
         rotor_inertia: Optional[ArrayLike] = None,
         frames: Optional[Sequence] = None,
         mimic: Optional[dict] = None,
+        validate_inertia: bool = True,
     ):
         n = len(parents)
         link_names = tuple(link_names) if link_names is not None else tuple(f"link{i}" for i in range(n))
@@ -174,8 +178,14 @@ class TreeModel(eqx.Module):
         if _concrete(g) and not np.all(np.isfinite(np.asarray(g))):
             raise ModelError(f"gravity is NaN or inf: {np.asarray(g).tolist()}")
         if _concrete(inr):
+            if validate_inertia:
+                for i in range(n):
+                    origin_params_check(np.asarray(inr[i]), f"link '{link_names[i]}'")
+            sub = _support(parents).T @ np.asarray(inr[:, 0])  # mass moved by each joint
             for i in range(n):
-                origin_params_check(np.asarray(inr[i]), f"link '{link_names[i]}'")
+                if not sub[i] > 0:
+                    raise InertiaError(f"joint '{joint_names[i]}' moves no mass (link '{link_names[i]}' and every "
+                                       "link after it are massless): the mass matrix would be singular")
         self.mimic = _mimic(mimic or {}, joint_names)
         coords = tuple(joint_names[i] for i in range(n) if not self.mimic[i])
         self.inertia = inr
@@ -263,14 +273,7 @@ class TreeModel(eqx.Module):
     @property
     def support(self) -> np.ndarray:
         """``(n, n)`` static mask: ``support[j, k]`` is True iff joint ``k`` moves link ``j`` (k is j or an ancestor)."""
-        n = self.n_joints
-        s = np.zeros((n, n), dtype=bool)
-        for j in range(n):
-            k = j
-            while k >= 0:
-                s[j, k] = True
-                k = self.parents[k]
-        return s
+        return _support(self.parents)
 
     def link_index(self, link) -> int:
         """Index of ``link`` given by index or by link name (or by the name of its joint)."""
@@ -302,6 +305,17 @@ class TreeModel(eqx.Module):
         names = list(changes)
         return eqx.tree_at(lambda m: [getattr(m, k) for k in names], self,
                            [jnp.asarray(changes[k], dtype=float) for k in names], is_leaf=lambda x: x is None)
+
+
+def _support(parents) -> np.ndarray:
+    n = len(parents)
+    s = np.zeros((n, n), dtype=bool)
+    for j in range(n):
+        k = j
+        while k >= 0:
+            s[j, k] = True
+            k = parents[k]
+    return s
 
 
 def _mimic(mimic: dict, joint_names) -> tuple:

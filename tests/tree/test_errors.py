@@ -46,9 +46,9 @@ def test_kinematic_loop_without_root():
         load_urdf(_urdf(joints))
 
 
-def test_missing_inertial_on_moving_link():
+def test_joint_moving_no_mass():
     text = _urdf(GOOD).replace(f'<link name="b">{INERTIAL}</link>', '<link name="b"/>')
-    with pytest.raises(ParseError, match="link 'b' is moved by joint 'j2' but has no <inertial>"):
+    with pytest.raises(InertiaError, match="joint 'j2' moves no mass .*link 'b'.*singular"):
         load_urdf(text)
 
 
