@@ -36,14 +36,17 @@ __all__ = ["SOLVERS", "IMPLICIT_SOLVERS", "ADJOINTS", "Solution", "simulate"]
 
 def _check_state(params: Any, q0: Array, qd0: Array) -> None:
     """Shape checks (static) and a NaN check (eager when the values are concrete)."""
-    if q0.ndim != 1 or qd0.shape != q0.shape:
+    nq, nv = getattr(params, "nq", None), getattr(params, "nv", None)
+    if not isinstance(nv, (int, np.integer)):
+        nv = nq
+    if q0.ndim != 1 or qd0.ndim != 1 or (nq == nv and qd0.shape != q0.shape):
         raise ModelError(
             f"initial state must be two vectors of the same length n, got q0 {q0.shape} and qd0 {qd0.shape} "
             "(batch with jax.vmap, not by stacking)"
         )
-    nq = getattr(params, "nq", None)
-    if isinstance(nq, (int, np.integer)) and q0.shape[0] != nq:
-        raise ModelError(f"initial state has {q0.shape[0]} coordinates but the model has nq = {nq}")
+    if isinstance(nq, (int, np.integer)) and (q0.shape[0], qd0.shape[0]) != (nq, nv):
+        raise ModelError(f"initial state has {q0.shape[0]} configuration entries and {qd0.shape[0]} velocities but "
+                         f"the model has nq = {nq}, nv = {nv}")
     _ode.check_state((q0, qd0), ("q0", "qd0"))
 
 
@@ -53,16 +56,19 @@ def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, t
     param_bad = _ode.check_finite("simulate", _ode.leaf_groups(params))
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate", "(q0, qd0)")
 
+    rate = getattr(params, "configuration_rate", None)
+    rate = (lambda p, q, qd: qd) if rate is None else (lambda p, q, qd: p.configuration_rate(q, qd))
+
     def controlled(t, q, qd, p):
         if control is None:
-            return jnp.zeros_like(q)
+            return jnp.zeros_like(qd)
         tau = control(t, q, qd, p)
         return eqx.error_if(tau, ~jnp.all(jnp.isfinite(tau)), "simulate: the control returned a non-finite "
                                                                 "generalised force")
 
     def vector_field(t, y, p):
         q, qd = y
-        return qd, dynamics(p, q, qd, controlled(t, q, qd, p))
+        return rate(p, q, qd), dynamics(p, q, qd, controlled(t, q, qd, p))
 
     events = None
     if switch:  # Coulomb friction of the listed joints at located events: each segment keeps every sign fixed
@@ -75,14 +81,14 @@ def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, t
             sign = jnp.sign(qd).at[idx].set(2.0 * modes - 1.0)
             # the friction law of this segment as a generalised force; the model's own Coulomb term is zeroed
             smooth = eqx.tree_at(lambda m: m.coulomb, p, jnp.zeros_like(p.coulomb))
-            return qd, dynamics(smooth, q, qd, tau - p.coulomb * sign)
+            return rate(p, q, qd), dynamics(smooth, q, qd, tau - p.coulomb * sign)
 
         def surfaces(t, y, p, modes):
             return (2.0 * modes - 1.0) * y[1][idx]  # the velocity along the segment's sign: crosses zero downwards
 
         # starting at rest, a joint moves the way it accelerates without its Coulomb friction
         free = eqx.tree_at(lambda m: m.coulomb, params, jnp.zeros_like(params.coulomb))
-        tau0 = jnp.zeros_like(q0) if control is None else control(t0, q0, qd0, params)
+        tau0 = jnp.zeros_like(qd0) if control is None else control(t0, q0, qd0, params)
         start = jnp.where(qd0 != 0.0, qd0, dynamics(free, q0, qd0, tau0))
         modes0 = (start[idx] >= 0.0).astype(qd0.dtype)
         ts_, (q, qd), steps, rejected, result, ok, ev = _ode.integrate_events(
@@ -178,25 +184,26 @@ def simulate(
     t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
 
     def tau_of(q, qd):
-        return jnp.zeros_like(q) if control is None else control(t0_, q, qd, params)
+        return jnp.zeros_like(qd) if control is None else control(t0_, q, qd, params)
 
     if control is not None:
         tau_shape = jax.eval_shape(tau_of, q0, qd0).shape
-        if tau_shape != q0.shape:
-            raise ModelError(f"control returned shape {tau_shape} for a state of shape {q0.shape}: it must return "
-                             "one generalised force per coordinate (no broadcasting of scalars)")
+        if tau_shape != qd0.shape:
+            raise ModelError(f"control returned shape {tau_shape} for a velocity of shape {qd0.shape}: it must "
+                             "return one generalised force per velocity coordinate (no broadcasting of scalars)")
     out = jax.eval_shape(lambda q, qd: dynamics(params, q, qd, tau_of(q, qd)), q0, qd0)
-    if out.shape != q0.shape:
-        raise ModelError(f"dynamics returned shape {out.shape} for a state of shape {q0.shape}")
+    if out.shape != qd0.shape:
+        raise ModelError(f"dynamics returned shape {out.shape} for a velocity of shape {qd0.shape}")
     _ode.check_finite("simulate", _ode.leaf_groups(params))  # eager, for concrete values
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:
         raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
     coulomb = getattr(params, "coulomb", None)
-    names = getattr(params, "coordinate_names", None) or getattr(params, "joint_names", None) or tuple(f"joint{i}" for i in range(q0.shape[0]))
+    names = (getattr(params, "velocity_names", None) or getattr(params, "joint_names", None)
+             or tuple(f"joint{i}" for i in range(qd0.shape[0])))
     switch: tuple = ()
     if coulomb is not None:
         # the joints whose friction switches: those with a non-zero Coulomb level (all of them when traced)
-        c = np.asarray(coulomb) if _ode._concrete(coulomb) else np.ones(q0.shape[0])
+        c = np.asarray(coulomb) if _ode._concrete(coulomb) else np.ones(qd0.shape[0])
         switch = tuple(int(i) for i in np.flatnonzero(c))
     if events:
         if coulomb is None:

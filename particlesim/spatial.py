@@ -24,6 +24,7 @@ __all__ = [
     "rpy_to_matrix",
     "axis_angle_to_matrix",
     "unit_axis_rotations",
+    "quaternion_to_matrix",
     "compose",
     "invert",
     "transform_point",
@@ -104,6 +105,17 @@ def unit_axis_rotations(axes: Float[ArrayLike, "n 3"], angles: Float[ArrayLike, 
     outer = a[..., :, None] * a[..., None, :]
     eye = jnp.broadcast_to(jnp.eye(3), outer.shape)
     return jnp.cos(t) * eye + jnp.sin(t) * skew(a) + (1.0 - jnp.cos(t)) * outer
+
+
+def quaternion_to_matrix(quat: Float[ArrayLike, "4"]) -> Float[Array, "3 3"]:
+    """Rotation of a quaternion ``[x, y, z, w]`` (Pinocchio's and ROS's order; MuJoCo's is ``[w, x, y, z]``),
+    normalised here so a quaternion that drifted off the unit sphere still gives a rotation."""
+    x, y, z, w = jnp.asarray(quat) / jnp.linalg.norm(quat)
+    return jnp.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
 
 
 def compose(pose_ab, pose_bc):

@@ -5,7 +5,8 @@ Supported joints: ``revolute``/``continuous`` (both revolute; position limits no
 Fixed joints are merged away: a link welded to a moving link adds its inertia to that link (the report's
 10-vectors about a common origin simply add), and the joints below it are re-expressed in that link's frame; the
 merged link keeps its name as a frame (``frame_pose``, ``link_jacobian``: ``tool0``, ``panda_hand``).
-Links welded to the root are part of the world. The root link is fixed to the world at identity.
+Links welded to the root are part of the world; the root link is fixed to the world at identity unless
+``floating_base=True`` puts it on a free joint.
 
 URDF conventions (ROS): a joint places its child at ``origin`` (``xyz``, then ``rpy`` with ``R = Rz Ry Rx``),
 followed by the joint motion about/along ``axis`` (child frame, normalised here); ``<inertial>`` gives the mass,
@@ -29,7 +30,7 @@ import numpy as np
 from ..errors import InertiaError, InertiaWarning, ModelError, ParseError
 from ..inertia import balance_inertia, check_inertia
 from ..spatial import rpy_to_matrix
-from ..tree.model import PRISMATIC, REVOLUTE, TreeModel
+from ..tree.model import FREE, PRISMATIC, REVOLUTE, TreeModel
 
 __all__ = ["load_urdf", "parse_urdf", "UnmodelledLimitsWarning"]
 
@@ -113,7 +114,8 @@ class UnmodelledLimitsWarning(UserWarning):
 
 
 def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, viscous=None, coulomb=None,
-              rotor_inertia=None, limits: str = "warn", mimic: bool = True, inertia: str = "strict") -> TreeModel:
+              rotor_inertia=None, limits: str = "warn", mimic: bool = True, inertia: str = "strict",
+              floating_base: bool = False) -> TreeModel:
     """Build a :class:`TreeModel` from a URDF file path or a URDF XML string.
 
     ``gravity`` is in the frame of the root link. Joint friction: the file's ``<dynamics damping=... friction=...>``
@@ -124,6 +126,11 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
     position limits are not modelled: ``limits="warn"`` (default) warns (:class:`UnmodelledLimitsWarning`) naming
     the limited joints, ``"ignore"`` accepts that silently. Raises :class:`ParseError` naming the link/joint for
     unparsable files, unsupported joint types, duplicate names and kinematic loops.
+
+    ``floating_base=True`` joins the root link to the world by a free joint named ``'root_joint'`` (Pinocchio's
+    ``JointModelFreeFlyer``): ``q = [x, y, z, qx, qy, qz, qw, joints...]`` (``nq = 7 + n``) and
+    ``qd = [v, w, joints...]`` with the root's linear and angular velocity in its own axes (``nv = 6 + n``);
+    friction and rotor-inertia arguments then have ``nv`` entries. Without it the root is fixed to the world.
 
     Inertias: a link without ``<inertial>`` (or with zero mass and inertia) is massless, accepted as long as every
     joint moves some mass (the usual way to write a spherical joint as three revolutes). ``inertia="strict"``
@@ -203,15 +210,20 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
     if len(roots) != 1:
         raise ParseError(f"{label}: expected one root link, found {roots or 'none (kinematic loop)'}")
     movable = [jt for jt in joints if jt["kind"] is not None]
+    if floating_base:  # the root link becomes a moving body on a free joint (Pinocchio's name for it)
+        if "root_joint" in seen_names:
+            raise ParseError(f"{label}: a joint is already named 'root_joint', the name of the floating base's joint")
+        movable.insert(0, dict(name="root_joint", kind=FREE, parent=None, child=roots[0], axis=np.array([1.0, 0, 0]),
+                               damping=0.0, friction=0.0, limited=False, mimic=None))
     index = {jt["name"]: i for i, jt in enumerate(movable)}
     # Walk the tree from the root: owner body (-1 = world) and pose of every link in its owner's frame.
-    owner = {roots[0]: -1}
+    owner = {roots[0]: 0 if floating_base else -1}
     pose = {roots[0]: (np.eye(3), np.zeros(3))}
+    placement = {"root_joint": (-1, np.eye(3), np.zeros(3))} if floating_base else {}
     children = {}
     for jt in joints:
         children.setdefault(jt["parent"], []).append(jt)
     stack, seen = [roots[0]], {roots[0]}
-    placement = {}
     while stack:
         ln = stack.pop()
         rp, pp = pose[ln]
@@ -235,7 +247,7 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
     for name, (src, _, _) in mimics.items():
         if src not in index:
             raise ParseError(f"{label}: joint '{name}' mimics '{src}', which is not a movable joint of the file")
-    coords = [jt for jt in movable if jt["mimic"] is None]
+    coords = [jt for jt in movable if jt["mimic"] is None and jt["kind"] != FREE]
     damping = {jt["name"]: jt["damping"] for jt in coords}
     friction = {jt["name"]: jt["friction"] for jt in coords}
     for jt in movable:  # a mimic joint's bearing acts on its source: G^T diag(F) G
@@ -248,10 +260,11 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
                 src, mult = mimics[src][0], mult * mimics[src][1]
             damping[src] += mult * mult * jt["damping"]
             friction[src] += abs(mult) * jt["friction"]
+    base = [0.0] * 6 if floating_base else []  # no friction on the floating base's six velocities
     if viscous is None and any(damping.values()):
-        viscous = [damping[jt["name"]] for jt in coords]
+        viscous = base + [damping[jt["name"]] for jt in coords]
     if coulomb is None and any(friction.values()):
-        coulomb = [friction[jt["name"]] for jt in coords]
+        coulomb = base + [friction[jt["name"]] for jt in coords]
     limited = [jt["name"] for jt in movable if jt["limited"]]
     if limited and limits == "warn":
         import warnings

@@ -18,7 +18,12 @@ __all__ = ["christoffel_symbols", "coriolis_matrix"]
 
 
 def christoffel_symbols(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Array, "n n n"]:
-    """``c[i, j, k]`` of eq. (4) (first kind)."""
+    """``c[i, j, k]`` of eq. (4) (first kind). Needs ``q`` and ``qd`` of one length (no floating base)."""
+    if model.nq != model.nv:
+        from ..errors import ModelError
+
+        raise ModelError("Christoffel symbols need one velocity per configuration entry; a floating base's "
+                         "quaternion has four entries for three rotations (use coriolis_times_qdot)")
     da = jax.jacfwd(lambda x: mass_matrix(model, x))(jnp.asarray(q, dtype=float))  # [i, j, k] = dA_ij/dq_k
     return 0.5 * (da + jnp.einsum("ikj->ijk", da) - jnp.einsum("jki->ijk", da))
 

@@ -52,11 +52,13 @@ class _Bodies(NamedTuple):
 
 
 def _check(model: TreeModel, **vectors) -> None:
-    """Each named vector must have shape ``(nq,)`` (static, so this holds under tracing too)."""
+    """``q`` must have shape ``(nq,)``, every other named vector ``(nv,)`` (static: holds under tracing too)."""
     for name, v in vectors.items():
-        if jnp.shape(v) != (model.nq,):
-            raise ModelError(f"{name} must have shape ({model.nq},) (one entry per joint of this {model.nq}-joint "
-                             f"model), got {jnp.shape(v)}")
+        n = model.nq if name == "q" else model.nv
+        if jnp.shape(v) != (n,):
+            what = "configuration entry" if name == "q" else "velocity coordinate"
+            raise ModelError(f"{name} must have shape ({n},) (one entry per {what} of this model), got "
+                             f"{jnp.shape(v)}")
 
 
 def _bodies(model: TreeModel, q) -> _Bodies:
@@ -72,12 +74,13 @@ def _bodies(model: TreeModel, q) -> _Bodies:
     j0 = jw + m[:, None, None] * (pp * eye - outer_pp) + 2.0 * ph * eye - cross_ph - jnp.swapaxes(cross_ph, -1, -2)
     h = m[:, None] * pos + hl
     a = world_axes(model, rot)
-    rev = model.is_revolute
+    rev = model.dof_revolute
+    at = pos[model.dof_owner] if model.floating else pos  # a point on each axis: its link's origin
     if rev.all():
-        s_w, s_v = a, jnp.cross(pos, a)
+        s_w, s_v = a, jnp.cross(at, a)
     else:
         rv = jnp.asarray(rev, dtype=pos.dtype)[:, None]
-        s_w, s_v = rv * a, rv * jnp.cross(pos, a) + (1.0 - rv) * a
+        s_w, s_v = rv * a, rv * jnp.cross(at, a) + (1.0 - rv) * a
     return _Bodies(m, h, j0, s_w, s_v)
 
 
@@ -87,13 +90,14 @@ def _apply_inertia(m, h, j0, w, v):
 
 
 def _mass_matrix(model: TreeModel, b: _Bodies) -> Array:
-    sup = jnp.asarray(model.support, dtype=b.m.dtype)  # (j, k)
-    # Composite inertias of the subtree of each joint k: sum_j S[j, k] (m_j, h_j, J0_j).
+    sup = jnp.asarray(model.dof_support, dtype=b.m.dtype)  # (j, k)
+    # Composite inertias of the subtree of each degree of freedom k: sum_j S[j, k] (m_j, h_j, J0_j).
     comp = sup.T @ jnp.concatenate([b.m[:, None], b.h, b.j0.reshape(-1, 9)], axis=1)
     mc, hc, jc = comp[:, 0], comp[:, 1:4], comp[:, 4:].reshape(-1, 3, 3)
-    fn, ff = _apply_inertia(mc, hc, jc, b.s_w, b.s_v)  # (i, 3): composite momentum of unit motion of joint i
+    fn, ff = _apply_inertia(mc, hc, jc, b.s_w, b.s_v)  # (i, 3): composite momentum of unit motion of dof i
     g = jnp.sum(b.s_w[:, None, :] * fn[None, :, :] + b.s_v[:, None, :] * ff[None, :, :], -1)  # g[k, i]
-    lower = g * sup.T  # keep k ancestor-or-self of i
+    before = sup.T if not model.floating else jnp.asarray(model.dof_before, dtype=b.m.dtype)
+    lower = g * before  # keep k ancestor-or-self of i (one order among a free joint's six)
     a = model.coordinate_matrix(lower + lower.T - jnp.diag(jnp.diagonal(g)))
     if model.rotor_inertia is not None:
         a = a + jnp.diag(model.rotor_inertia)
@@ -105,17 +109,18 @@ def _rnea(model: TreeModel, b: _Bodies, qd, qdd, gravity) -> Array:
     n = model.n_joints
     qd = None if qd is None else model.joint_values(qd, offset=False)
     qdd = None if qdd is None else model.joint_values(qdd, offset=False)
-    sup = jnp.asarray(model.support, dtype=b.m.dtype)
+    sup = jnp.asarray(model.dof_support, dtype=b.m.dtype)  # (links, dofs)
+    own = model.dof_owner if model.floating else slice(None)
     acc_w = jnp.zeros((n, 3))
     acc_v = jnp.zeros((n, 3)) if gravity is None else jnp.broadcast_to(-gravity, (n, 3))
-    col_w = jnp.zeros((n, 3))
-    col_v = jnp.zeros((n, 3))
+    col_w = jnp.zeros(b.s_w.shape)
+    col_v = jnp.zeros(b.s_w.shape)
     if qd is not None:
         sw, sv = b.s_w * qd[:, None], b.s_v * qd[:, None]
-        vel = sup @ jnp.concatenate([sw, sv], axis=1)
+        vel = sup @ jnp.concatenate([sw, sv], axis=1)  # link velocities
         vw, vv = vel[:, :3], vel[:, 3:]
-        col_w = col_w + jnp.cross(vw, sw)  # v_k x_m (s_k qd_k)
-        col_v = col_v + jnp.cross(vw, sv) + jnp.cross(vv, sw)
+        col_w = col_w + jnp.cross(vw[own], sw)  # v_owner(k) x_m (s_k qd_k)
+        col_v = col_v + jnp.cross(vw[own], sv) + jnp.cross(vv[own], sw)
     if qdd is not None:
         col_w = col_w + b.s_w * qdd[:, None]
         col_v = col_v + b.s_v * qdd[:, None]

@@ -10,11 +10,12 @@ over the angular velocity of link ``j``: ``[v; w] = J_j qd`` (the report's ``\\m
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ..errors import ModelError
-from ..spatial import unit_axis_rotations
-from .model import TreeModel
+from ..spatial import quaternion_to_matrix, unit_axis_rotations
+from .model import FREE, TreeModel
 
 __all__ = [
     "joint_transforms",
@@ -41,8 +42,12 @@ def _mv(a, x):
 def joint_transforms(model: TreeModel, q: Float[ArrayLike, " n"]):
     """Parent-from-child poses ``(R (n,3,3), p (n,3))`` of every joint at ``q`` (the report's ``^iT_j``), vectorised.
 
-    ``q`` holds the model's coordinates (mimic joints follow their sources)."""
-    q = model.joint_values(jnp.asarray(q))
+    ``q`` holds the model's coordinates (mimic joints follow their sources; a free joint reads its position and
+    quaternion ``[x, y, z, qx, qy, qz, qw]``)."""
+    qf = model.joint_values(jnp.asarray(q))
+    free = [i for i, k in enumerate(model.kinds) if k == FREE]
+    first = np.concatenate([[0], np.cumsum(model.joint_nq)[:-1]])
+    q = qf[first] if free else qf
     ax = model.axes_array
     rev = model.is_revolute
     r0 = jnp.asarray(model.origin_rotation_array)
@@ -51,9 +56,13 @@ def joint_transforms(model: TreeModel, q: Float[ArrayLike, " n"]):
         p = model.origin_xyz
     else:
         angle = jnp.where(jnp.asarray(rev), q, 0.0)
-        slide = jnp.where(jnp.asarray(rev), 0.0, q)
+        slide = jnp.where(jnp.asarray(rev | np.array([k == FREE for k in model.kinds])), 0.0, q)
         r = _mm(r0, unit_axis_rotations(jnp.asarray(ax), angle))
         p = model.origin_xyz + _mv(r0, jnp.asarray(ax) * slide[:, None])
+    for i in free:  # the free joint's own pose, after its placement (R0, p0) in the world
+        pos, quat = qf[first[i]:first[i] + 3], qf[first[i] + 3:first[i] + 7]
+        r = r.at[i].set(r0[i] @ quaternion_to_matrix(quat))
+        p = p.at[i].set(model.origin_xyz[i] + r0[i] @ pos)
     return r, p
 
 
@@ -81,6 +90,7 @@ def link_velocities(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Array
     r_rel, p_rel = joint_transforms(model, q)
     e = jnp.asarray(model.axes_array)
     rev = model.is_revolute
+    first = np.concatenate([[0], np.cumsum(model.joint_nv)[:-1]])
     ws, vs = [None] * model.n_joints, [None] * model.n_joints
     for j in model.topological_order:
         i = model.parents[j]
@@ -90,30 +100,38 @@ def link_velocities(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Array
         else:
             w = a_ji @ ws[i]
             v = a_ji @ (vs[i] + jnp.cross(ws[i], p_rel[j]))
-        if rev[j]:
-            w = w + e[j] * qd[j]
+        d = first[j]
+        if model.kinds[j] == FREE:  # [v; w] of the link, in its own axes
+            v, w = v + qd[d:d + 3], w + qd[d + 3:d + 6]
+        elif rev[j]:
+            w = w + e[j] * qd[d]
         else:
-            v = v + e[j] * qd[j]
+            v = v + e[j] * qd[d]
         ws[j], vs[j] = w, v
     return jnp.stack(ws), jnp.stack(vs)
 
 
-def world_axes(model: TreeModel, rot: Float[Array, "n 3 3"]) -> Float[Array, "n 3"]:
-    """Joint axes in world coordinates, ``a_k = R_k e_k`` (the axis is fixed in the child link)."""
-    return _mv(rot, jnp.asarray(model.axes_array))
+def world_axes(model: TreeModel, rot: Float[Array, "n 3 3"]) -> Float[Array, "d 3"]:
+    """Axes of the joint degrees of freedom in world coordinates, ``a_k = R_k e_k`` (the axis is fixed in the
+    child link; a free joint contributes its link's three axes twice: translations, then rotations)."""
+    if not model.floating:
+        return _mv(rot, jnp.asarray(model.axes_array))
+    return _mv(rot[model.dof_owner], jnp.asarray(model.dof_axes))
 
 
 def link_jacobians(model: TreeModel, rot, pos) -> Float[Array, "n 6 nq"]:
     """World-axes Jacobians of all link origins from poses, vectorised with the static support mask (§3).
     Columns are the model's coordinates (a mimic joint's column is added to its source's, times the multiplier).
 
-    Column ``k`` of ``J_j``: ``[a_k x (p_j - p_k); a_k]`` (revolute) or ``[a_k; 0]`` (prismatic) if joint ``k`` moves
-    link ``j``, else zero.
+    Column ``k`` of ``J_j``: ``[a_k x (p_j - p_k); a_k]`` (revolute) or ``[a_k; 0]`` (prismatic) if degree of freedom
+    ``k`` moves link ``j``, else zero, with ``p_k`` the origin of the link that carries it (a free joint: three
+    prismatic columns along its link's axes, then three revolute ones about them).
     """
-    a = world_axes(model, rot)  # (n, 3) indexed by joint k
-    mask = jnp.asarray(model.support, dtype=pos.dtype)  # (j, k)
-    rev = model.is_revolute
-    r = pos[:, None, :] - pos[None, :, :]  # (j, k, 3): p_j - p_k
+    a = world_axes(model, rot)  # (d, 3) indexed by degree of freedom k
+    mask = jnp.asarray(model.dof_support, dtype=pos.dtype)  # (j, k)
+    rev = model.dof_revolute
+    at = pos[model.dof_owner] if model.floating else pos
+    r = pos[:, None, :] - at[None, :, :]  # (j, k, 3): p_j - p_owner(k)
     ak = jnp.broadcast_to(a[None, :, :], r.shape)
     if rev.all():
         lin = jnp.cross(ak, r)
@@ -159,7 +177,7 @@ def link_jacobian(model: TreeModel, q: Float[ArrayLike, " n"], link, *, frame: s
         owner, r, p = fr
         rot, pos = link_poses(model, q)
         if owner < 0:
-            return jnp.zeros((6, model.nq))
+            return jnp.zeros((6, model.nv))
         jac = link_jacobians(model, rot, pos)[owner]
         off = rot[owner] @ p  # frame origin from the link origin, world axes: v_f = v_O + w x off
         skew = jnp.array([[0.0, -off[2], off[1]], [off[2], 0.0, -off[0]], [-off[1], off[0], 0.0]])

@@ -42,11 +42,20 @@ from jaxtyping import Array, ArrayLike, Float
 from ..errors import InertiaError, ModelError
 from ..inertia import check_inertia
 
-__all__ = ["TreeModel", "REVOLUTE", "PRISMATIC", "JOINT_KINDS"]
+__all__ = ["TreeModel", "REVOLUTE", "PRISMATIC", "FREE", "JOINT_KINDS"]
 
 REVOLUTE = "revolute"
 PRISMATIC = "prismatic"
-JOINT_KINDS = (REVOLUTE, PRISMATIC)
+#: A free-flyer (floating base) root joint, as Pinocchio's ``JointModelFreeFlyer``: configuration
+#: ``[x, y, z, qx, qy, qz, qw]`` (position of the link origin in its parent frame, unit quaternion), velocity
+#: ``[v, w]`` (linear velocity of the origin and angular velocity, both in the link's own axes).
+FREE = "free"
+JOINT_KINDS = (REVOLUTE, PRISMATIC, FREE)
+#: Rate (1/s) at which a free joint's quaternion norm is drawn back to 1 during integration (see
+#: ``TreeModel.configuration_rate``); slow beside any step an integrator takes, so it adds no stiffness.
+QUATERNION_GAIN = 1.0
+#: Names of the six velocity coordinates of a free joint, in order.
+FREE_VELOCITY = ("vx", "vy", "vz", "wx", "wy", "wz")
 
 
 def _concrete(x) -> bool:
@@ -147,6 +156,8 @@ class TreeModel(eqx.Module):
         for i, k in enumerate(kinds):
             if k not in JOINT_KINDS:
                 raise ModelError(f"joint '{joint_names[i]}': unknown joint kind {k!r} (expected one of {JOINT_KINDS})")
+            if k == FREE and parents[i] != -1:
+                raise ModelError(f"joint '{joint_names[i]}': a free joint must join a root link to the world")
         ax = np.asarray(axes, dtype=float)
         if ax.shape != (n, 3):
             raise ModelError(f"axes must have shape ({n}, 3), got {ax.shape}")
@@ -187,7 +198,10 @@ class TreeModel(eqx.Module):
                     raise InertiaError(f"joint '{joint_names[i]}' moves no mass (link '{link_names[i]}' and every "
                                        "link after it are massless): the mass matrix would be singular")
         self.mimic = _mimic(mimic or {}, joint_names)
-        coords = tuple(joint_names[i] for i in range(n) if not self.mimic[i])
+        for i, m in enumerate(self.mimic):
+            if m and FREE in (kinds[i], kinds[m[0]]):
+                raise ModelError(f"mimic joint '{joint_names[i]}': free joints neither mimic nor are mimicked")
+        coords = tuple(_velocity_names(joint_names, kinds, self.mimic))
         self.inertia = inr
         self.origin_xyz = xyz
         self.gravity = g
@@ -209,9 +223,30 @@ class TreeModel(eqx.Module):
         return len(self.parents)
 
     @property
+    def joint_nq(self) -> tuple:
+        """Configuration entries per joint (7 for a free joint, else 1)."""
+        return tuple(7 if k == FREE else 1 for k in self.kinds)
+
+    @property
+    def joint_nv(self) -> tuple:
+        """Velocity entries (degrees of freedom) per joint (6 for a free joint, else 1)."""
+        return tuple(6 if k == FREE else 1 for k in self.kinds)
+
+    @property
+    def floating(self) -> bool:
+        """True if some root link is joined to the world by a free joint."""
+        return FREE in self.kinds
+
+    @property
     def nq(self) -> int:
-        """Number of coordinates (joints that do not mimic another)."""
-        return sum(1 for m in self.mimic if not m)
+        """Length of the configuration ``q`` (joints that do not mimic another; 7 entries per free joint)."""
+        return sum(n for n, m in zip(self.joint_nq, self.mimic) if not m)
+
+    @property
+    def nv(self) -> int:
+        """Length of the velocity ``qd`` (and of ``qdd``, ``tau``; 6 entries per free joint). ``nq`` without a
+        floating base."""
+        return sum(n for n, m in zip(self.joint_nv, self.mimic) if not m)
 
     @property
     def coordinate_names(self) -> tuple:
@@ -219,37 +254,114 @@ class TreeModel(eqx.Module):
         return tuple(name for name, m in zip(self.joint_names, self.mimic) if not m)
 
     @property
-    def coordinate_map(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(G (n_joints, nq), offset (n_joints,))`` with joint values ``G q + offset``."""
-        col = np.cumsum([not m for m in self.mimic]) - 1
-        g, off = np.zeros((self.n_joints, self.nq)), np.zeros(self.n_joints)
+    def velocity_names(self) -> tuple:
+        """Names of the ``nv`` velocity coordinates (a free joint's as ``'root_joint:vx'`` ... ``':wz'``)."""
+        return tuple(_velocity_names(self.joint_names, self.kinds, self.mimic))
+
+    def _maps(self, sizes) -> tuple[np.ndarray, np.ndarray]:
+        """``(G, offset)`` from coordinates to every joint's entries (``sizes`` per joint: ``joint_nq``/``nv``)."""
+        own = [0 if m else k for k, m in zip(sizes, self.mimic)]
+        col = np.concatenate([[0], np.cumsum(own)])
+        row = np.concatenate([[0], np.cumsum(sizes)])
+        g, off = np.zeros((row[-1], col[-1])), np.zeros(row[-1])
         for i, m in enumerate(self.mimic):
             if m:
-                g[i, col[m[0]]], off[i] = m[1], m[2]
+                g[row[i], col[m[0]]], off[row[i]] = m[1], m[2]
             else:
-                g[i, col[i]] = 1.0
+                g[row[i]:row[i + 1], col[i]:col[i + 1]] = np.eye(sizes[i])
         return g, off
 
+    @property
+    def coordinate_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(G (n_dofs, nv), offset (n_joints,))``: joint velocities ``G qd``, and (without free joints) joint
+        positions ``G q + offset``."""
+        return self._maps(self.joint_nv)[0], self._maps(self.joint_nq)[1]
+
     def joint_values(self, q, *, offset: bool = True):
-        """Joint positions (``offset=True``) or velocities/accelerations (``False``) from coordinates ``q``."""
+        """Every joint's configuration entries (``offset=True``, from ``q``) or velocity/acceleration entries
+        (``offset=False``, from ``qd``/``qdd``): mimic joints filled in from their sources."""
         if not any(self.mimic):
             return q
-        g, off = self.coordinate_map
+        g, off = self._maps(self.joint_nq if offset else self.joint_nv)
         out = jnp.asarray(g) @ q
         return out + jnp.asarray(off) if offset else out
 
     def coordinate_forces(self, tau):
-        """Joint forces/torques ``(n_joints,)`` projected onto the coordinates, ``G^T tau``."""
+        """Forces/torques on every joint degree of freedom projected onto the coordinates, ``G^T tau``."""
         if not any(self.mimic):
             return tau
-        return jnp.asarray(self.coordinate_map[0]).T @ tau
+        return jnp.asarray(self._maps(self.joint_nv)[0]).T @ tau
 
     def coordinate_matrix(self, a):
-        """A joint-space matrix ``(n_joints, n_joints)`` reduced to the coordinates, ``G^T A G``."""
+        """A matrix over every joint degree of freedom reduced to the coordinates, ``G^T A G``."""
         if not any(self.mimic):
             return a
-        g = jnp.asarray(self.coordinate_map[0])
+        g = jnp.asarray(self._maps(self.joint_nv)[0])
         return g.T @ a @ g
+
+    def configuration_rate(self, q, qd):
+        """``dq/dt`` from the configuration ``q`` (nq) and velocity ``qd`` (nv): ``qd`` itself except on a free
+        joint, whose position moves as ``R(quat) v`` and whose quaternion as ``1/2 quat * (w, 0)`` plus the
+        restoring term ``QUATERNION_GAIN (1 - |quat|^2) quat``: the unit norm is an attracting invariant of the
+        flow, so an integrator keeps it to its tolerance without renormalising the state after a step."""
+        if not self.floating:
+            return qd
+        parts, iq, iv = [], 0, 0
+        for k, m in zip(self.kinds, self.mimic):
+            if m:
+                continue
+            if k == FREE:
+                quat, v, w = q[iq + 3:iq + 7], qd[iv:iv + 3], qd[iv + 3:iv + 6]
+                x, y, z, s = quat
+                rot = jnp.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * s), 2 * (x * z + y * s)],
+                                 [2 * (x * y + z * s), 1 - 2 * (x * x + z * z), 2 * (y * z - x * s)],
+                                 [2 * (x * z - y * s), 2 * (y * z + x * s), 1 - 2 * (x * x + y * y)]])
+                vec = jnp.array([x, y, z])
+                dvec = 0.5 * (s * w + jnp.cross(vec, w))  # quat (x) [w, 0], vector part
+                ds = -0.5 * jnp.dot(vec, w)
+                restore = QUATERNION_GAIN * (1.0 - jnp.dot(quat, quat)) * quat
+                parts += [rot @ v, jnp.concatenate([dvec, ds[None]]) + restore]
+                iq, iv = iq + 7, iv + 6
+            else:
+                parts.append(qd[iv:iv + 1])
+                iq, iv = iq + 1, iv + 1
+        return jnp.concatenate(parts)
+
+    # ---- degrees of freedom: one per 1-DOF joint, six per free joint ----
+    @property
+    def dof_owner(self) -> np.ndarray:
+        """``(n_dofs,)`` the link each joint degree of freedom moves (its axis is fixed in that link)."""
+        return np.repeat(np.arange(self.n_joints), self.joint_nv)
+
+    @property
+    def dof_revolute(self) -> np.ndarray:
+        """``(n_dofs,)`` True for rotational degrees of freedom (a free joint: 3 translations, then 3 rotations)."""
+        out = []
+        for k in self.kinds:
+            out += [False] * 3 + [True] * 3 if k == FREE else [k == REVOLUTE]
+        return np.array(out, dtype=bool)
+
+    @property
+    def dof_axes(self) -> np.ndarray:
+        """``(n_dofs, 3)`` axis of each degree of freedom in its link's axes (a free joint: the link's own axes)."""
+        ax = self.axes_array
+        return np.concatenate([np.vstack([np.eye(3), np.eye(3)]) if k == FREE else ax[i:i + 1]
+                               for i, k in enumerate(self.kinds)], axis=0)
+
+    @property
+    def dof_support(self) -> np.ndarray:
+        """``(n_links, n_dofs)`` static mask: degree of freedom ``k`` moves link ``j``."""
+        return self.support[:, self.dof_owner]
+
+    @property
+    def dof_before(self) -> np.ndarray:
+        """``(n_dofs, n_dofs)``: ``[k, i]`` iff dof ``k`` acts on dof ``i``'s link and comes first (a strict order
+        on the ancestors, used for the lower triangle of the composite-inertia mass matrix)."""
+        own = self.dof_owner
+        anc = self.support[own][:, own].T  # [k, i]: owner(k) is an ancestor-or-self of owner(i)
+        same = own[:, None] == own[None, :]
+        idx = np.arange(len(own))
+        return anc & (~same | (idx[:, None] <= idx[None, :]))
 
     @property
     def axes_array(self) -> np.ndarray:
@@ -305,6 +417,12 @@ class TreeModel(eqx.Module):
         names = list(changes)
         return eqx.tree_at(lambda m: [getattr(m, k) for k in names], self,
                            [jnp.asarray(changes[k], dtype=float) for k in names], is_leaf=lambda x: x is None)
+
+
+def _velocity_names(joint_names, kinds, mimic):
+    for name, k, m in zip(joint_names, kinds, mimic):
+        if not m:
+            yield from ([f"{name}:{c}" for c in FREE_VELOCITY] if k == FREE else [name])
 
 
 def _support(parents) -> np.ndarray:
