@@ -1,0 +1,213 @@
+"""MJCF import into a :class:`~particlesim.tree.TreeModel`, through MuJoCo's own compiler.
+
+MuJoCo compiles the file (defaults, classes, includes, inertias from geoms, ``fusestatic`` ... exactly as MuJoCo
+itself would), and the compiled ``MjModel`` is read back:
+
+* a body with one hinge or slide joint becomes one link; a body with several joints becomes a chain of links, the
+  first ones massless (as MuJoCo, each joint moves the body about its own anchor, in the order written); a hinge
+  turns about an axis through its anchor, so the link frame is the body frame moved to the anchor;
+* a body without joints is welded to its parent (its inertia added, its name kept as a frame);
+* a ``freejoint`` on a root body becomes a free joint (``q = [x, y, z, qx, qy, qz, qw]`` with the quaternion in
+  Pinocchio's ``xyzw`` order, ``qd = [v, w]`` both in the body's axes: MuJoCo's ``qvel`` has ``v`` in world axes;
+  :func:`from_mujoco_state` converts);
+* ``damping``, ``frictionloss`` and ``armature`` become viscous friction, Coulomb friction and rotor inertia;
+  ``<equality><joint>`` couplings with a linear polynomial become mimic joints; gravity comes from ``<option>``.
+
+Not imported: ball joints (write three hinges), joint stiffness/springref, tendons, actuators, contacts and
+equality constraints other than linear joint couplings — each refused or warned about by name. Joint ranges are
+not modelled (:class:`~particlesim.io.urdf.UnmodelledLimitsWarning`, as for URDF).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+from typing import Union
+
+import mujoco
+import numpy as np
+
+from ..errors import ModelError, ParseError
+from ..tree.model import FREE, PRISMATIC, REVOLUTE, TreeModel
+from .urdf import UnmodelledLimitsWarning
+
+__all__ = ["load_mjcf", "from_mujoco_state"]
+
+
+def _quat_wxyz(q) -> np.ndarray:
+    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _compile(source) -> tuple[str, mujoco.MjModel]:
+    if isinstance(source, mujoco.MjModel):
+        return "<MjModel>", source
+    if isinstance(source, str) and not source.strip():
+        raise ParseError("empty MJCF source: give a file path or the MJCF XML text")
+    text = isinstance(source, str) and source.lstrip().startswith("<")
+    label = "<mjcf string>" if text else str(source)
+    try:
+        m = mujoco.MjModel.from_xml_string(source) if text else mujoco.MjModel.from_xml_path(str(Path(source)))
+    except ValueError as e:
+        raise ParseError(f"{label}: MuJoCo cannot compile it: {e}") from None
+    return label, m
+
+
+def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = "warn",
+              friction: bool = True) -> TreeModel:
+    """Build a :class:`TreeModel` from an MJCF file path, MJCF XML text or a compiled ``mujoco.MjModel``.
+
+    ``friction=False`` drops ``damping``/``frictionloss``/``armature``. ``limits`` as in
+    :func:`~particlesim.io.urdf.load_urdf`. Raises :class:`ParseError` naming the body or joint for what the tree
+    model cannot represent (see the module docstring).
+    """
+    if limits not in ("warn", "ignore"):
+        raise ValueError(f"limits must be 'warn' or 'ignore', got {limits!r}")
+    label, m = _compile(source)
+
+    def name(obj, i, fallback):
+        return mujoco.mj_id2name(m, obj, i) or f"{fallback}{i}"
+
+    body_names = [name(mujoco.mjtObj.mjOBJ_BODY, b, "body") for b in range(m.nbody)]
+    joint_names = [name(mujoco.mjtObj.mjOBJ_JOINT, j, "joint") for j in range(m.njnt)]
+    links = []  # dicts: name, joint, kind, parent link, R0, p0, axis, dof
+    owner = {0: -1}  # body -> link that carries it (-1: the world)
+    body_in_owner = {0: (np.eye(3), np.zeros(3))}  # body frame in its owner's link frame
+    inertia = {}
+    frames = []
+    for b in range(1, m.nbody):
+        par = int(m.body_parentid[b])
+        rp, pp = body_in_owner[par]
+        r, p = rp @ _quat_wxyz(m.body_quat[b]), pp + rp @ m.body_pos[b]  # body frame before its joints
+        adr, num = int(m.body_jntadr[b]), int(m.body_jntnum[b])
+        parent_link = owner[par]
+        anchor = np.zeros(3)  # the current link frame = body frame (after earlier joints) moved to this point
+        for j in range(adr, adr + num):
+            jt, jn = int(m.jnt_type[j]), joint_names[j]
+            if jt == mujoco.mjtJoint.mjJNT_BALL:
+                raise ParseError(f"{label}: joint '{jn}' of body '{body_names[b]}' is a ball joint, which the tree "
+                                 "model does not have: write it as three hinges")
+            if jt == mujoco.mjtJoint.mjJNT_FREE:  # MuJoCo's compiler allows it only alone on a top-level body
+                links.append(dict(name=body_names[b], joint=jn, kind=FREE, parent=-1, r0=np.eye(3), p0=np.zeros(3),
+                                  axis=np.array([1.0, 0.0, 0.0]), jnt=j))
+                owner[b], body_in_owner[b] = len(links) - 1, (np.eye(3), np.zeros(3))
+                break
+            new_anchor = m.jnt_pos[j].astype(float) if jt == mujoco.mjtJoint.mjJNT_HINGE else anchor
+            if j == adr:  # from the parent link: the body's placement, then to the anchor
+                r0, p0 = r, p + r @ new_anchor
+            else:  # from the previous joint's link (same body axes): the anchors' difference
+                r0, p0 = np.eye(3), new_anchor - anchor
+            ref = float(m.qpos0[m.jnt_qposadr[j]])  # MuJoCo moves a joint by q - qpos0 (its ``ref``)
+            ax = m.jnt_axis[j].astype(float) / np.linalg.norm(m.jnt_axis[j])
+            if ref and jt == mujoco.mjtJoint.mjJNT_HINGE:
+                c, s_, k = np.cos(-ref), np.sin(-ref), np.array([[0, -ax[2], ax[1]], [ax[2], 0, -ax[0]],
+                                                                   [-ax[1], ax[0], 0]])
+                r0 = r0 @ (np.eye(3) + s_ * k + (1 - c) * k @ k)
+            elif ref:
+                p0 = p0 - r0 @ ax * ref
+            last = j == adr + num - 1
+            links.append(dict(name=body_names[b] if last else f"{body_names[b]}/{jn}", joint=jn,
+                              kind=REVOLUTE if jt == mujoco.mjtJoint.mjJNT_HINGE else PRISMATIC,
+                              parent=parent_link, r0=r0, p0=p0, axis=ax, jnt=j))
+            parent_link, anchor = len(links) - 1, new_anchor
+        else:
+            if num:
+                owner[b], body_in_owner[b] = parent_link, (np.eye(3), -anchor)
+            else:  # welded: its frame in the owner's link frame
+                owner[b], body_in_owner[b] = owner[par], (r, p)
+                frames.append((body_names[b], owner[par], r, p))
+        if m.body_mass[b] > 0 or np.any(m.body_inertia[b]):
+            o = owner[b]
+            if o < 0:
+                continue  # welded to the world
+            rb, pb = body_in_owner[b]
+            ri = rb @ _quat_wxyz(m.body_iquat[b])
+            c = pb + rb @ m.body_ipos[b]
+            i_com = ri @ np.diag(m.body_inertia[b]) @ ri.T
+            mass = float(m.body_mass[b])
+            j0 = i_com + mass * (c @ c * np.eye(3) - np.outer(c, c))
+            inertia[o] = inertia.get(o, 0.0) + np.array([mass, *(mass * c), j0[0, 0], j0[0, 1], j0[0, 2], j0[1, 1],
+                                                         j0[1, 2], j0[2, 2]])
+    if not links:
+        raise ParseError(f"{label}: the model has no joints (nothing moves)")
+    n = len(links)
+    limited = [joint_names[lk["jnt"]] for lk in links if lk["kind"] != FREE and m.jnt_limited[lk["jnt"]]]
+    if limited and limits == "warn":
+        warnings.warn(f"{label}: joint ranges of {len(limited)} joint(s) are not modelled (e.g. "
+                      f"{', '.join(repr(x) for x in limited[:4])}): the joints move freely past them. Pass "
+                      "limits='ignore' to accept this silently", UnmodelledLimitsWarning, stacklevel=2)
+    stiff = [joint_names[j] for j in range(m.njnt) if m.jnt_stiffness[j] != 0.0]
+    if stiff:
+        raise ParseError(f"{label}: joint stiffness is not imported (joints {stiff})")
+    mimic = {}
+    for e in range(m.neq):
+        if not m.eq_active0[e]:
+            continue
+        if m.eq_type[e] != mujoco.mjtEq.mjEQ_JOINT:
+            raise ParseError(f"{label}: equality constraint {e} ({mujoco.mjtEq(m.eq_type[e]).name}) is not a joint "
+                             "coupling; only <equality><joint> with a linear polycoef is imported")
+        j1, j2, coef = int(m.eq_obj1id[e]), int(m.eq_obj2id[e]), m.eq_data[e][:5]
+        if j2 < 0 or np.any(coef[2:]):
+            raise ParseError(f"{label}: joint coupling of '{joint_names[j1]}' is not linear in a second joint")
+        # MuJoCo: q1 - q1_0 = c0 + c1 (q2 - q2_0), with the reference positions qpos0
+        q10, q20 = m.qpos0[m.jnt_qposadr[j1]], m.qpos0[m.jnt_qposadr[j2]]
+        mimic[joint_names[j1]] = (joint_names[j2], float(coef[1]), float(q10 + coef[0] - coef[1] * q20))
+    order = [lk["jnt"] for lk in links]
+    dofs = np.concatenate([np.arange(m.jnt_dofadr[j], m.jnt_dofadr[j] + (6 if links[i]["kind"] == FREE else 1))
+                           for i, j in enumerate(order) if joint_names[j] not in mimic])
+    extra = {}
+    if friction:
+        for key, field, fold in (("viscous", m.dof_damping, "sq"), ("coulomb", m.dof_frictionloss, "abs"),
+                                 ("rotor_inertia", m.dof_armature, "sq")):
+            vals = np.asarray(field, dtype=float).copy()
+            for jn, (src, mult, _) in mimic.items():  # a follower's term acts on its source, as in load_urdf
+                vals[m.jnt_dofadr[joint_names.index(src)]] += (mult * mult if fold == "sq" else abs(mult)) * \
+                    vals[m.jnt_dofadr[joint_names.index(jn)]]
+            if np.any(vals):
+                for i, lk in enumerate(links):
+                    if lk["kind"] == FREE and np.any(vals[m.jnt_dofadr[lk["jnt"]]:m.jnt_dofadr[lk["jnt"]] + 6]):
+                        raise ParseError(f"{label}: free joint '{lk['joint']}' has damping, frictionloss or armature, "
+                                         "which are not imported on a floating base")
+                extra[key] = vals[dofs]
+    try:
+        return TreeModel(
+            parents=[lk["parent"] for lk in links],
+            kinds=[lk["kind"] for lk in links],
+            axes=np.array([lk["axis"] for lk in links]).reshape(n, 3),
+            origin_rotations=np.array([lk["r0"] for lk in links]).reshape(n, 3, 3),
+            origin_xyz=np.array([lk["p0"] for lk in links]).reshape(n, 3),
+            inertia=np.array([inertia.get(i, np.zeros(10)) for i in range(n)]),
+            gravity=np.asarray(m.opt.gravity, dtype=float),
+            link_names=[lk["name"] for lk in links],
+            joint_names=[lk["joint"] for lk in links],
+            frames=frames,
+            mimic=mimic,
+            **extra,
+        )
+    except ModelError as e:
+        raise type(e)(f"{label}: {e}") from None
+
+
+def from_mujoco_state(model: TreeModel, m: mujoco.MjModel, qpos, qvel) -> tuple[np.ndarray, np.ndarray]:
+    """``(q, qd)`` of ``model`` (from :func:`load_mjcf` of ``m``) at MuJoCo's ``(qpos, qvel)``: free joints'
+    quaternions reordered ``wxyz -> xyzw`` and linear velocities turned from world into body axes; mimic joints
+    dropped."""
+    qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
+    q, qd = [], []
+    for jn, kind, mim in zip(model.joint_names, model.kinds, model.mimic):
+        if mim:
+            continue
+        j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, jn)
+        a, d = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
+        if kind == FREE:
+            quat = qpos[a + 3:a + 7]
+            rot = _quat_wxyz(quat)
+            q += [*qpos[a:a + 3], *quat[1:], quat[0]]
+            qd += [*(rot.T @ qvel[d:d + 3]), *qvel[d + 3:d + 6]]
+        else:
+            q.append(qpos[a])
+            qd.append(qvel[d])
+    return np.array(q), np.array(qd)
