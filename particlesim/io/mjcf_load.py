@@ -7,15 +7,19 @@ itself would), and the compiled ``MjModel`` is read back:
   first ones massless (as MuJoCo, each joint moves the body about its own anchor, in the order written); a hinge
   turns about an axis through its anchor, so the link frame is the body frame moved to the anchor;
 * a body without joints is welded to its parent (its inertia added, its name kept as a frame);
+* a ``ball`` joint becomes a ball joint (``q = [qx, qy, qz, qw]``, ``qd = w`` in the body's axes);
 * a ``freejoint`` on a root body becomes a free joint (``q = [x, y, z, qx, qy, qz, qw]`` with the quaternion in
   Pinocchio's ``xyzw`` order, ``qd = [v, w]`` both in the body's axes: MuJoCo's ``qvel`` has ``v`` in world axes;
   :func:`from_mujoco_state` converts);
-* ``damping``, ``frictionloss`` and ``armature`` become viscous friction, Coulomb friction and rotor inertia;
+* ``damping``, ``frictionloss`` and ``armature`` become viscous friction, Coulomb friction and rotor inertia,
+  ``stiffness`` about ``springref`` joint springs (hinge, slide, ball);
   ``<equality><joint>`` couplings with a linear polynomial become mimic joints; gravity comes from ``<option>``.
 
-Not imported: ball joints (write three hinges), joint stiffness/springref, tendons, actuators, contacts and
-equality constraints other than linear joint couplings — each refused or warned about by name. Joint ranges are
-not modelled (:class:`~particlesim.io.urdf.UnmodelledLimitsWarning`, as for URDF).
+Not imported: springs on free joints, nonlinear (polynomial) stiffness or damping, tendons with armature,
+stiffness, damping or friction loss, and equality constraints other than linear joint couplings are refused by
+name; other tendons and actuators are left out with a warning (their forces enter through the control); contacts
+are not modelled. ``<option><flag>`` switches for gravity, springs, dampers and friction loss are honoured. Joint
+ranges are not modelled (:class:`~particlesim.io.urdf.UnmodelledLimitsWarning`, as for URDF).
 """
 
 from __future__ import annotations
@@ -29,10 +33,14 @@ import mujoco
 import numpy as np
 
 from ..errors import ModelError, ParseError
-from ..tree.model import FREE, PRISMATIC, REVOLUTE, TreeModel
+from ..tree.model import BALL, FREE, PRISMATIC, REVOLUTE, TreeModel
 from .urdf import UnmodelledLimitsWarning
 
-__all__ = ["load_mjcf", "from_mujoco_state"]
+__all__ = ["load_mjcf", "from_mujoco_state", "joint_ids", "UnmodelledElementsWarning"]
+
+
+class UnmodelledElementsWarning(UserWarning):
+    """An MJCF model has elements (tendons, actuators) that the imported tree does not carry."""
 
 
 def _quat_wxyz(q) -> np.ndarray:
@@ -56,6 +64,24 @@ def _compile(source) -> tuple[str, mujoco.MjModel]:
     return label, m
 
 
+def _names(m, obj, count, fallback) -> list:
+    """Element names; unnamed elements get ``fallback + index`` (prefixed with ``_`` until no named one uses it)."""
+    given = [mujoco.mj_id2name(m, obj, i) for i in range(count)]
+    out = []
+    for i, g in enumerate(given):
+        alt = f"{fallback}{i}"
+        while not g and (alt in given or alt in out):
+            alt = "_" + alt
+        out.append(g or alt)
+    return out
+
+
+def joint_ids(model: TreeModel, m: mujoco.MjModel) -> list:
+    """MuJoCo's joint id of every joint of ``model`` (from :func:`load_mjcf` of ``m``), in the model's order."""
+    names = _names(m, mujoco.mjtObj.mjOBJ_JOINT, m.njnt, "joint")
+    return [names.index(jn) for jn in model.joint_names]
+
+
 def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = "warn",
               friction: bool = True) -> TreeModel:
     """Build a :class:`TreeModel` from an MJCF file path, MJCF XML text or a compiled ``mujoco.MjModel``.
@@ -68,11 +94,8 @@ def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = 
         raise ValueError(f"limits must be 'warn' or 'ignore', got {limits!r}")
     label, m = _compile(source)
 
-    def name(obj, i, fallback):
-        return mujoco.mj_id2name(m, obj, i) or f"{fallback}{i}"
-
-    body_names = [name(mujoco.mjtObj.mjOBJ_BODY, b, "body") for b in range(m.nbody)]
-    joint_names = [name(mujoco.mjtObj.mjOBJ_JOINT, j, "joint") for j in range(m.njnt)]
+    body_names = _names(m, mujoco.mjtObj.mjOBJ_BODY, m.nbody, "body")
+    joint_names = _names(m, mujoco.mjtObj.mjOBJ_JOINT, m.njnt, "joint")
     links = []  # dicts: name, joint, kind, parent link, R0, p0, axis, dof
     owner = {0: -1}  # body -> link that carries it (-1: the world)
     body_in_owner = {0: (np.eye(3), np.zeros(3))}  # body frame in its owner's link frame
@@ -87,20 +110,19 @@ def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = 
         anchor = np.zeros(3)  # the current link frame = body frame (after earlier joints) moved to this point
         for j in range(adr, adr + num):
             jt, jn = int(m.jnt_type[j]), joint_names[j]
-            if jt == mujoco.mjtJoint.mjJNT_BALL:
-                raise ParseError(f"{label}: joint '{jn}' of body '{body_names[b]}' is a ball joint, which the tree "
-                                 "model does not have: write it as three hinges")
             if jt == mujoco.mjtJoint.mjJNT_FREE:  # MuJoCo's compiler allows it only alone on a top-level body
                 links.append(dict(name=body_names[b], joint=jn, kind=FREE, parent=-1, r0=np.eye(3), p0=np.zeros(3),
                                   axis=np.array([1.0, 0.0, 0.0]), jnt=j))
                 owner[b], body_in_owner[b] = len(links) - 1, (np.eye(3), np.zeros(3))
                 break
-            new_anchor = m.jnt_pos[j].astype(float) if jt == mujoco.mjtJoint.mjJNT_HINGE else anchor
+            turns = jt in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_BALL)
+            new_anchor = m.jnt_pos[j].astype(float) if turns else anchor
             if j == adr:  # from the parent link: the body's placement, then to the anchor
                 r0, p0 = r, p + r @ new_anchor
             else:  # from the previous joint's link (same body axes): the anchors' difference
                 r0, p0 = np.eye(3), new_anchor - anchor
-            ref = float(m.qpos0[m.jnt_qposadr[j]])  # MuJoCo moves a joint by q - qpos0 (its ``ref``)
+            ball = jt == mujoco.mjtJoint.mjJNT_BALL
+            ref = 0.0 if ball else float(m.qpos0[m.jnt_qposadr[j]])  # a hinge/slide moves by q - qpos0 (``ref``)
             ax = m.jnt_axis[j].astype(float) / np.linalg.norm(m.jnt_axis[j])
             if ref and jt == mujoco.mjtJoint.mjJNT_HINGE:
                 c, s_, k = np.cos(-ref), np.sin(-ref), np.array([[0, -ax[2], ax[1]], [ax[2], 0, -ax[0]],
@@ -110,7 +132,7 @@ def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = 
                 p0 = p0 - r0 @ ax * ref
             last = j == adr + num - 1
             links.append(dict(name=body_names[b] if last else f"{body_names[b]}/{jn}", joint=jn,
-                              kind=REVOLUTE if jt == mujoco.mjtJoint.mjJNT_HINGE else PRISMATIC,
+                              kind=BALL if ball else REVOLUTE if jt == mujoco.mjtJoint.mjJNT_HINGE else PRISMATIC,
                               parent=parent_link, r0=r0, p0=p0, axis=ax, jnt=j))
             parent_link, anchor = len(links) - 1, new_anchor
         else:
@@ -139,9 +161,25 @@ def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = 
         warnings.warn(f"{label}: joint ranges of {len(limited)} joint(s) are not modelled (e.g. "
                       f"{', '.join(repr(x) for x in limited[:4])}): the joints move freely past them. Pass "
                       "limits='ignore' to accept this silently", UnmodelledLimitsWarning, stacklevel=2)
-    stiff = [joint_names[j] for j in range(m.njnt) if m.jnt_stiffness[j] != 0.0]
-    if stiff:
-        raise ParseError(f"{label}: joint stiffness is not imported (joints {stiff})")
+    # tendons with passive dynamics or armature act on the joints and are not imported: refuse; others (and
+    # actuators) only matter through controls: say so
+    tendon_names = _names(m, mujoco.mjtObj.mjOBJ_TENDON, m.ntendon, "tendon")
+    for t in range(m.ntendon):
+        if m.tendon_armature[t] or m.tendon_stiffness[t] or m.tendon_damping[t] or np.any(m.tendon_stiffnesspoly[t]) \
+                or np.any(m.tendon_dampingpoly[t]) or m.tendon_frictionloss[t]:
+            raise ParseError(f"{label}: tendon '{tendon_names[t]}' has armature, stiffness, damping or friction loss, "
+                             "which act on the joints and are not imported")
+    if m.ntendon or m.nu:
+        warnings.warn(f"{label}: {m.ntendon} tendon(s) and {m.nu} actuator(s) are not imported: apply their forces "
+                      "through the control", UnmodelledElementsWarning, stacklevel=2)
+    bad = [joint_names[j] for j in range(m.njnt) if np.any(m.jnt_stiffnesspoly[j])]
+    bad += [joint_names[m.dof_jntid[v]] for v in range(m.nv) if np.any(m.dof_dampingpoly[v])]
+    if bad:
+        raise ParseError(f"{label}: nonlinear joint stiffness or damping (polynomial terms) is not imported "
+                         f"(joints {sorted(set(bad))})")
+    disabled = int(m.opt.disableflags)
+    off = {flag: bool(disabled & int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag}")))
+           for flag in ("GRAVITY", "SPRING", "DAMPER", "FRICTIONLOSS")}
     mimic = {}
     for e in range(m.neq):
         if not m.eq_active0[e]:
@@ -156,13 +194,16 @@ def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = 
         q10, q20 = m.qpos0[m.jnt_qposadr[j1]], m.qpos0[m.jnt_qposadr[j2]]
         mimic[joint_names[j1]] = (joint_names[j2], float(coef[1]), float(q10 + coef[0] - coef[1] * q20))
     order = [lk["jnt"] for lk in links]
-    dofs = np.concatenate([np.arange(m.jnt_dofadr[j], m.jnt_dofadr[j] + (6 if links[i]["kind"] == FREE else 1))
+    width = {FREE: 6, BALL: 3}
+    dofs = np.concatenate([np.arange(m.jnt_dofadr[j], m.jnt_dofadr[j] + width.get(links[i]["kind"], 1))
                            for i, j in enumerate(order) if joint_names[j] not in mimic])
     extra = {}
     if friction:
         for key, field, fold in (("viscous", m.dof_damping, "sq"), ("coulomb", m.dof_frictionloss, "abs"),
                                  ("rotor_inertia", m.dof_armature, "sq")):
             vals = np.asarray(field, dtype=float).copy()
+            if (key == "viscous" and off["DAMPER"]) or (key == "coulomb" and off["FRICTIONLOSS"]):
+                continue  # disabled by <option><flag>
             for jn, (src, mult, _) in mimic.items():  # a follower's term acts on its source, as in load_urdf
                 vals[m.jnt_dofadr[joint_names.index(src)]] += (mult * mult if fold == "sq" else abs(mult)) * \
                     vals[m.jnt_dofadr[joint_names.index(jn)]]
@@ -172,6 +213,21 @@ def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = 
                         raise ParseError(f"{label}: free joint '{lk['joint']}' has damping, frictionloss or armature, "
                                          "which are not imported on a floating base")
                 extra[key] = vals[dofs]
+    if np.any(m.jnt_stiffness[order] != 0.0) and not off["SPRING"]:  # joint springs about qpos_spring, per velocity coordinate
+        k, ref = [], []
+        for lk in links:
+            j, kind = lk["jnt"], lk["kind"]
+            if m.jnt_stiffness[j] != 0.0 and (kind == FREE or lk["joint"] in mimic):
+                what = "a free joint" if kind == FREE else "a coupled joint"
+                raise ParseError(f"{label}: joint '{lk['joint']}' has stiffness, which is not imported on {what}")
+            if lk["joint"] in mimic:
+                continue
+            a = int(m.jnt_qposadr[j])
+            k += [float(m.jnt_stiffness[j])] * width.get(kind, 1)
+            ref += (list(m.qpos_spring[a:a + 3]) + [*m.qpos_spring[a + 4:a + 7], m.qpos_spring[a + 3]]
+                    if kind == FREE else [*m.qpos_spring[a + 1:a + 4], m.qpos_spring[a]] if kind == BALL
+                    else [m.qpos_spring[a]])
+        extra["stiffness"], extra["spring_ref"] = np.array(k), np.array(ref)
     try:
         return TreeModel(
             parents=[lk["parent"] for lk in links],
@@ -180,7 +236,7 @@ def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = 
             origin_rotations=np.array([lk["r0"] for lk in links]).reshape(n, 3, 3),
             origin_xyz=np.array([lk["p0"] for lk in links]).reshape(n, 3),
             inertia=np.array([inertia.get(i, np.zeros(10)) for i in range(n)]),
-            gravity=np.asarray(m.opt.gravity, dtype=float),
+            gravity=np.zeros(3) if off["GRAVITY"] else np.asarray(m.opt.gravity, dtype=float),
             link_names=[lk["name"] for lk in links],
             joint_names=[lk["joint"] for lk in links],
             frames=frames,
@@ -197,16 +253,18 @@ def from_mujoco_state(model: TreeModel, m: mujoco.MjModel, qpos, qvel) -> tuple[
     dropped."""
     qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
     q, qd = [], []
-    for jn, kind, mim in zip(model.joint_names, model.kinds, model.mimic):
+    for j, kind, mim in zip(joint_ids(model, m), model.kinds, model.mimic):
         if mim:
             continue
-        j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, jn)
         a, d = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j])
         if kind == FREE:
             quat = qpos[a + 3:a + 7]
             rot = _quat_wxyz(quat)
             q += [*qpos[a:a + 3], *quat[1:], quat[0]]
             qd += [*(rot.T @ qvel[d:d + 3]), *qvel[d + 3:d + 6]]
+        elif kind == BALL:
+            q += [*qpos[a + 1:a + 4], qpos[a]]
+            qd += list(qvel[d:d + 3])
         else:
             q.append(qpos[a])
             qd.append(qvel[d])

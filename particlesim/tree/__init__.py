@@ -18,9 +18,10 @@ from .dynamics import (
     gravity_torques,
     inverse_dynamics,
     mass_matrix,
+    spring_torques,
 )
 from .energy import kinetic_energy, link_kinetic_energies, potential_energy
-from .kinematics import frame_pose, link_jacobian, link_jacobians, link_poses, link_velocities, wrench_torques
+from .kinematics import spring_deflections, frame_pose, link_jacobian, link_jacobians, link_poses, link_velocities, wrench_torques
 from .model import PRISMATIC, REVOLUTE, TreeModel
 
 __all__ = [
@@ -40,6 +41,8 @@ __all__ = [
     "forward_dynamics",
     "inverse_dynamics",
     "friction_torques",
+    "spring_torques",
+    "spring_deflections",
     "link_poses",
     "link_velocities",
     "link_jacobian",

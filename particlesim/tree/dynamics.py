@@ -24,7 +24,7 @@ from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, ArrayLike, Float
 
 from .energy import split_params
-from .kinematics import _mm, _mv, link_poses, world_axes
+from .kinematics import _mm, _mv, link_poses, spring_deflections, world_axes
 from ..errors import ModelError
 from .model import TreeModel
 
@@ -34,6 +34,7 @@ __all__ = [
     "coriolis_times_qdot",
     "gravity_torques",
     "friction_torques",
+    "spring_torques",
     "inverse_dynamics",
     "forward_dynamics",
 ]
@@ -75,7 +76,7 @@ def _bodies(model: TreeModel, q) -> _Bodies:
     h = m[:, None] * pos + hl
     a = world_axes(model, rot)
     rev = model.dof_revolute
-    at = pos[model.dof_owner] if model.floating else pos  # a point on each axis: its link's origin
+    at = pos[model.dof_owner] if model.multi_dof else pos  # a point on each axis: its link's origin
     if rev.all():
         s_w, s_v = a, jnp.cross(at, a)
     else:
@@ -96,7 +97,7 @@ def _mass_matrix(model: TreeModel, b: _Bodies) -> Array:
     mc, hc, jc = comp[:, 0], comp[:, 1:4], comp[:, 4:].reshape(-1, 3, 3)
     fn, ff = _apply_inertia(mc, hc, jc, b.s_w, b.s_v)  # (i, 3): composite momentum of unit motion of dof i
     g = jnp.sum(b.s_w[:, None, :] * fn[None, :, :] + b.s_v[:, None, :] * ff[None, :, :], -1)  # g[k, i]
-    before = sup.T if not model.floating else jnp.asarray(model.dof_before, dtype=b.m.dtype)
+    before = sup.T if not model.multi_dof else jnp.asarray(model.dof_before, dtype=b.m.dtype)
     lower = g * before  # keep k ancestor-or-self of i (one order among a free joint's six)
     a = model.coordinate_matrix(lower + lower.T - jnp.diag(jnp.diagonal(g)))
     if model.rotor_inertia is not None:
@@ -110,7 +111,7 @@ def _rnea(model: TreeModel, b: _Bodies, qd, qdd, gravity) -> Array:
     qd = None if qd is None else model.joint_values(qd, offset=False)
     qdd = None if qdd is None else model.joint_values(qdd, offset=False)
     sup = jnp.asarray(model.dof_support, dtype=b.m.dtype)  # (links, dofs)
-    own = model.dof_owner if model.floating else slice(None)
+    own = model.dof_owner if model.multi_dof else slice(None)
     acc_w = jnp.zeros((n, 3))
     acc_v = jnp.zeros((n, 3)) if gravity is None else jnp.broadcast_to(-gravity, (n, 3))
     col_w = jnp.zeros(b.s_w.shape)
@@ -172,6 +173,13 @@ def friction_torques(model: TreeModel, qd: Float[ArrayLike, " n"], *,
     return out
 
 
+def spring_torques(model: TreeModel, q: Float[ArrayLike, " nq"]) -> Float[Array, " nv"]:
+    """Generalised forces of the joint springs, ``-K d(q)`` (zero, and free, without ``stiffness``)."""
+    if model.stiffness is None:
+        return jnp.zeros(model.nv)
+    return -model.stiffness * spring_deflections(model, q)
+
+
 def inverse_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"],
                      qdd: Float[ArrayLike, " n"], *, smooth_friction: Optional[float] = None) -> Float[Array, " n"]:
     """``tau = A qdd + C qd + Q + Gamma_f`` (eqs. 3, 17, 18)."""
@@ -182,6 +190,8 @@ def inverse_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Arra
         tau = tau + model.rotor_inertia * qdd
     if model.viscous is not None or model.coulomb is not None:
         tau = tau + friction_torques(model, qd, smooth_friction=smooth_friction)
+    if model.stiffness is not None:
+        tau = tau - spring_torques(model, q)
     return tau
 
 
@@ -198,4 +208,6 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Arra
     rhs = tau - _rnea(model, b, qd, None, model.gravity)
     if model.viscous is not None or model.coulomb is not None:
         rhs = rhs - friction_torques(model, qd, smooth_friction=smooth_friction)
+    if model.stiffness is not None:
+        rhs = rhs + spring_torques(model, q)
     return cho_solve(cho_factor(_mass_matrix(model, b)), rhs)

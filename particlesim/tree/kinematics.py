@@ -15,7 +15,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ..errors import ModelError
 from ..spatial import quaternion_to_matrix, unit_axis_rotations
-from .model import FREE, TreeModel
+from .model import BALL, FREE, TreeModel
 
 __all__ = [
     "joint_transforms",
@@ -26,6 +26,7 @@ __all__ = [
     "link_jacobian",
     "frame_pose",
     "wrench_torques",
+    "spring_deflections",
 ]
 
 
@@ -45,7 +46,7 @@ def joint_transforms(model: TreeModel, q: Float[ArrayLike, " n"]):
     ``q`` holds the model's coordinates (mimic joints follow their sources; a free joint reads its position and
     quaternion ``[x, y, z, qx, qy, qz, qw]``)."""
     qf = model.joint_values(jnp.asarray(q))
-    free = [i for i, k in enumerate(model.kinds) if k == FREE]
+    free = [i for i, k in enumerate(model.kinds) if k in (FREE, BALL)]
     first = np.concatenate([[0], np.cumsum(model.joint_nq)[:-1]])
     q = qf[first] if free else qf
     ax = model.axes_array
@@ -56,13 +57,16 @@ def joint_transforms(model: TreeModel, q: Float[ArrayLike, " n"]):
         p = model.origin_xyz
     else:
         angle = jnp.where(jnp.asarray(rev), q, 0.0)
-        slide = jnp.where(jnp.asarray(rev | np.array([k == FREE for k in model.kinds])), 0.0, q)
+        slide = jnp.where(jnp.asarray(rev | np.array([k in (FREE, BALL) for k in model.kinds])), 0.0, q)
         r = _mm(r0, unit_axis_rotations(jnp.asarray(ax), angle))
         p = model.origin_xyz + _mv(r0, jnp.asarray(ax) * slide[:, None])
-    for i in free:  # the free joint's own pose, after its placement (R0, p0) in the world
-        pos, quat = qf[first[i]:first[i] + 3], qf[first[i] + 3:first[i] + 7]
+    for i in free:  # a free or ball joint's own motion, after its placement (R0, p0)
+        if model.kinds[i] == FREE:
+            pos, quat = qf[first[i]:first[i] + 3], qf[first[i] + 3:first[i] + 7]
+            p = p.at[i].set(model.origin_xyz[i] + r0[i] @ pos)
+        else:
+            quat = qf[first[i]:first[i] + 4]
         r = r.at[i].set(r0[i] @ quaternion_to_matrix(quat))
-        p = p.at[i].set(model.origin_xyz[i] + r0[i] @ pos)
     return r, p
 
 
@@ -103,6 +107,8 @@ def link_velocities(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Array
         d = first[j]
         if model.kinds[j] == FREE:  # [v; w] of the link, in its own axes
             v, w = v + qd[d:d + 3], w + qd[d + 3:d + 6]
+        elif model.kinds[j] == BALL:
+            w = w + qd[d:d + 3]
         elif rev[j]:
             w = w + e[j] * qd[d]
         else:
@@ -114,7 +120,7 @@ def link_velocities(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Array
 def world_axes(model: TreeModel, rot: Float[Array, "n 3 3"]) -> Float[Array, "d 3"]:
     """Axes of the joint degrees of freedom in world coordinates, ``a_k = R_k e_k`` (the axis is fixed in the
     child link; a free joint contributes its link's three axes twice: translations, then rotations)."""
-    if not model.floating:
+    if not model.multi_dof:
         return _mv(rot, jnp.asarray(model.axes_array))
     return _mv(rot[model.dof_owner], jnp.asarray(model.dof_axes))
 
@@ -130,7 +136,7 @@ def link_jacobians(model: TreeModel, rot, pos) -> Float[Array, "n 6 nq"]:
     a = world_axes(model, rot)  # (d, 3) indexed by degree of freedom k
     mask = jnp.asarray(model.dof_support, dtype=pos.dtype)  # (j, k)
     rev = model.dof_revolute
-    at = pos[model.dof_owner] if model.floating else pos
+    at = pos[model.dof_owner] if model.multi_dof else pos
     r = pos[:, None, :] - at[None, :, :]  # (j, k, 3): p_j - p_owner(k)
     ak = jnp.broadcast_to(a[None, :, :], r.shape)
     if rev.all():
@@ -207,3 +213,38 @@ def wrench_torques(model: TreeModel, q: Float[ArrayLike, " n"], link, wrench: Fl
         raise ModelError(f"wrench must have shape (6,) = [force; moment], got {w.shape}")
     return link_jacobian(model, q, link, frame=frame).T @ w
 
+
+def _quat_mul(a, b):
+    """Hamilton product of quaternions ``[x, y, z, w]``."""
+    av, aw, bv, bw = a[:3], a[3], b[:3], b[3]
+    return jnp.concatenate([aw * bv + bw * av + jnp.cross(av, bv), (aw * bw - av @ bv)[None]])
+
+
+def _rotation_vector(quat):
+    """Rotation vector of a quaternion ``[x, y, z, w]`` (angle in [0, pi], as MuJoCo's ``quat2Vel``)."""
+    quat = quat / jnp.linalg.norm(quat)
+    quat = jnp.where(quat[3] < 0.0, -quat, quat)
+    v, w = quat[:3], quat[3]
+    n = jnp.linalg.norm(v)
+    safe = jnp.where(n > 1e-12, n, 1.0)
+    return jnp.where(n > 1e-12, 2.0 * jnp.arctan2(safe, w) / safe, 2.0 / w) * v
+
+
+def spring_deflections(model: TreeModel, q: Float[ArrayLike, " nq"]) -> Float[Array, " nv"]:
+    """Deflection of each joint spring from ``spring_ref``, one entry per velocity coordinate: ``q - q_ref`` for
+    hinges and slides, the rotation vector of ``q_ref^-1 q`` (child axes) for ball joints (MuJoCo's ``subQuat``)."""
+    q = jnp.asarray(q)
+    ref = model.spring_ref
+    parts, iq = [], 0
+    for kind, m in zip(model.kinds, model.mimic):
+        if m:
+            continue
+        if kind == BALL:
+            conj = ref[iq:iq + 4] * jnp.array([-1.0, -1.0, -1.0, 1.0])
+            parts.append(_rotation_vector(_quat_mul(conj, q[iq:iq + 4])))
+        elif kind == FREE:
+            parts.append(jnp.zeros(6))  # no springs on free joints (refused at construction)
+        else:
+            parts.append(q[iq:iq + 1] - ref[iq:iq + 1])
+        iq += {FREE: 7, BALL: 4}.get(kind, 1)
+    return jnp.concatenate(parts)

@@ -17,7 +17,9 @@ Differentiable ``jax.Array`` leaves:
 * ``origin_xyz`` ``(n, 3)``: ``p0_i``, the joint origin in the parent frame (geometric lengths, e.g. L1..L9);
 * ``gravity`` ``(3,)`` in the world frame;
 * optional per-coordinate ``viscous`` (``Fv``), ``coulomb`` (``Fc``) (eq. 17) and ``rotor_inertia``
-  (``I_a = N^2 J_m``, eq. 18). ``None`` means absent: the code path is skipped at trace time and costs nothing.
+  (``I_a = N^2 J_m``, eq. 18), and joint springs ``stiffness`` (per velocity coordinate) about ``spring_ref`` (a
+  configuration, default the zero one), as MuJoCo's joint ``stiffness``/``springref``. ``None`` means absent: the
+  code path is skipped at trace time and costs nothing.
 
 Mimic joints (URDF ``<mimic>``, Pinocchio's ``mimic=True``): joint ``i`` may follow another joint ``s`` as
 ``q_i = multiplier * q_s + offset``. It then has no coordinate of its own: the model's coordinates ``q`` (length
@@ -42,7 +44,7 @@ from jaxtyping import Array, ArrayLike, Float
 from ..errors import InertiaError, ModelError
 from ..inertia import check_inertia
 
-__all__ = ["TreeModel", "REVOLUTE", "PRISMATIC", "FREE", "JOINT_KINDS"]
+__all__ = ["TreeModel", "REVOLUTE", "PRISMATIC", "FREE", "BALL", "JOINT_KINDS"]
 
 REVOLUTE = "revolute"
 PRISMATIC = "prismatic"
@@ -50,7 +52,12 @@ PRISMATIC = "prismatic"
 #: ``[x, y, z, qx, qy, qz, qw]`` (position of the link origin in its parent frame, unit quaternion), velocity
 #: ``[v, w]`` (linear velocity of the origin and angular velocity, both in the link's own axes).
 FREE = "free"
-JOINT_KINDS = (REVOLUTE, PRISMATIC, FREE)
+#: A spherical joint, as Pinocchio's ``JointModelSpherical`` and MuJoCo's ``ball``: configuration a unit quaternion
+#: ``[qx, qy, qz, qw]`` (rotation of the child frame after its placement), velocity ``w`` in the child's axes.
+BALL = "ball"
+JOINT_KINDS = (REVOLUTE, PRISMATIC, FREE, BALL)
+_NQ = {FREE: 7, BALL: 4}
+_NV = {FREE: 6, BALL: 3}
 #: Rate (1/s) at which a free joint's quaternion norm is drawn back to 1 during integration (see
 #: ``TreeModel.configuration_rate``); slow beside any step an integrator takes, so it adds no stiffness.
 QUATERNION_GAIN = 1.0
@@ -108,6 +115,8 @@ class TreeModel(eqx.Module):
     viscous: Optional[Float[Array, " n"]]
     coulomb: Optional[Float[Array, " n"]]
     rotor_inertia: Optional[Float[Array, " n"]]
+    stiffness: Optional[Float[Array, " nv"]]
+    spring_ref: Optional[Float[Array, " nq"]]
     link_names: tuple = eqx.field(static=True)
     joint_names: tuple = eqx.field(static=True)
     parents: tuple = eqx.field(static=True)
@@ -132,6 +141,8 @@ class TreeModel(eqx.Module):
         viscous: Optional[ArrayLike] = None,
         coulomb: Optional[ArrayLike] = None,
         rotor_inertia: Optional[ArrayLike] = None,
+        stiffness: Optional[ArrayLike] = None,
+        spring_ref: Optional[ArrayLike] = None,
         frames: Optional[Sequence] = None,
         mimic: Optional[dict] = None,
         validate_inertia: bool = True,
@@ -199,8 +210,9 @@ class TreeModel(eqx.Module):
                                        "link after it are massless): the mass matrix would be singular")
         self.mimic = _mimic(mimic or {}, joint_names)
         for i, m in enumerate(self.mimic):
-            if m and FREE in (kinds[i], kinds[m[0]]):
-                raise ModelError(f"mimic joint '{joint_names[i]}': free joints neither mimic nor are mimicked")
+            if m and ({kinds[i], kinds[m[0]]} & {FREE, BALL}):
+                raise ModelError(f"mimic joint '{joint_names[i]}': free and ball joints neither mimic nor are "
+                                 "mimicked")
         coords = tuple(_velocity_names(joint_names, kinds, self.mimic))
         self.inertia = inr
         self.origin_xyz = xyz
@@ -208,6 +220,29 @@ class TreeModel(eqx.Module):
         self.viscous = _vec_param(viscous, len(coords), "viscous friction", coords)
         self.coulomb = _vec_param(coulomb, len(coords), "Coulomb friction", coords)
         self.rotor_inertia = _vec_param(rotor_inertia, len(coords), "rotor inertia", coords)
+        self.stiffness = _vec_param(stiffness, len(coords), "joint stiffness", coords)
+        self.spring_ref = None
+        if self.stiffness is not None:
+            if _concrete(self.stiffness):
+                at = 0
+                for i, k in enumerate(kinds):
+                    if self.mimic[i]:
+                        continue
+                    if k == FREE and np.any(np.asarray(self.stiffness[at:at + 6])):
+                        raise ModelError(f"joint '{joint_names[i]}': springs on free joints are not modelled")
+                    at += _NV.get(k, 1)
+            nq = sum(_NQ.get(k, 1) for k, m in zip(kinds, self.mimic) if not m)
+            if spring_ref is None:  # the zero configuration: angles 0, identity quaternions
+                spring_ref = np.concatenate([[0.0, 0.0, 0.0, 1.0] if k == BALL else [0.0] * _NQ.get(k, 1)
+                                             for k, m in zip(kinds, self.mimic) if not m])
+            ref = jnp.asarray(spring_ref, dtype=float)
+            if ref.shape != (nq,):
+                raise ModelError(f"spring_ref must be a configuration of shape ({nq},), got {ref.shape}")
+            if _concrete(ref) and not np.all(np.isfinite(np.asarray(ref))):
+                raise ModelError("spring_ref is NaN or inf")
+            self.spring_ref = ref
+        elif spring_ref is not None:
+            raise ModelError("spring_ref given without stiffness")
         self.link_names = link_names
         self.joint_names = joint_names
         self.parents = parents
@@ -224,18 +259,23 @@ class TreeModel(eqx.Module):
 
     @property
     def joint_nq(self) -> tuple:
-        """Configuration entries per joint (7 for a free joint, else 1)."""
-        return tuple(7 if k == FREE else 1 for k in self.kinds)
+        """Configuration entries per joint (7 for a free joint, 4 for a ball joint, else 1)."""
+        return tuple(_NQ.get(k, 1) for k in self.kinds)
 
     @property
     def joint_nv(self) -> tuple:
-        """Velocity entries (degrees of freedom) per joint (6 for a free joint, else 1)."""
-        return tuple(6 if k == FREE else 1 for k in self.kinds)
+        """Velocity entries (degrees of freedom) per joint (6 for a free joint, 3 for a ball joint, else 1)."""
+        return tuple(_NV.get(k, 1) for k in self.kinds)
 
     @property
     def floating(self) -> bool:
         """True if some root link is joined to the world by a free joint."""
         return FREE in self.kinds
+
+    @property
+    def multi_dof(self) -> bool:
+        """True if some joint has several degrees of freedom (free or ball): the general per-dof layout is used."""
+        return FREE in self.kinds or BALL in self.kinds
 
     @property
     def nq(self) -> int:
@@ -304,14 +344,15 @@ class TreeModel(eqx.Module):
         joint, whose position moves as ``R(quat) v`` and whose quaternion as ``1/2 quat * (w, 0)`` plus the
         restoring term ``QUATERNION_GAIN (1 - |quat|^2) quat``: the unit norm is an attracting invariant of the
         flow, so an integrator keeps it to its tolerance without renormalising the state after a step."""
-        if not self.floating:
+        if not self.multi_dof:
             return qd
         parts, iq, iv = [], 0, 0
         for k, m in zip(self.kinds, self.mimic):
             if m:
                 continue
-            if k == FREE:
-                quat, v, w = q[iq + 3:iq + 7], qd[iv:iv + 3], qd[iv + 3:iv + 6]
+            if k in (FREE, BALL):
+                quat = q[iq + 3:iq + 7] if k == FREE else q[iq:iq + 4]
+                v, w = (qd[iv:iv + 3], qd[iv + 3:iv + 6]) if k == FREE else (None, qd[iv:iv + 3])
                 x, y, z, s = quat
                 rot = jnp.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * s), 2 * (x * z + y * s)],
                                  [2 * (x * y + z * s), 1 - 2 * (x * x + z * z), 2 * (y * z - x * s)],
@@ -320,8 +361,8 @@ class TreeModel(eqx.Module):
                 dvec = 0.5 * (s * w + jnp.cross(vec, w))  # quat (x) [w, 0], vector part
                 ds = -0.5 * jnp.dot(vec, w)
                 restore = QUATERNION_GAIN * (1.0 - jnp.dot(quat, quat)) * quat
-                parts += [rot @ v, jnp.concatenate([dvec, ds[None]]) + restore]
-                iq, iv = iq + 7, iv + 6
+                parts += ([rot @ v] if k == FREE else []) + [jnp.concatenate([dvec, ds[None]]) + restore]
+                iq, iv = iq + _NQ[k], iv + _NV[k]
             else:
                 parts.append(qd[iv:iv + 1])
                 iq, iv = iq + 1, iv + 1
@@ -338,14 +379,15 @@ class TreeModel(eqx.Module):
         """``(n_dofs,)`` True for rotational degrees of freedom (a free joint: 3 translations, then 3 rotations)."""
         out = []
         for k in self.kinds:
-            out += [False] * 3 + [True] * 3 if k == FREE else [k == REVOLUTE]
+            out += [False] * 3 + [True] * 3 if k == FREE else [True] * 3 if k == BALL else [k == REVOLUTE]
         return np.array(out, dtype=bool)
 
     @property
     def dof_axes(self) -> np.ndarray:
         """``(n_dofs, 3)`` axis of each degree of freedom in its link's axes (a free joint: the link's own axes)."""
         ax = self.axes_array
-        return np.concatenate([np.vstack([np.eye(3), np.eye(3)]) if k == FREE else ax[i:i + 1]
+        return np.concatenate([np.vstack([np.eye(3), np.eye(3)]) if k == FREE else np.eye(3) if k == BALL
+                               else ax[i:i + 1]
                                for i, k in enumerate(self.kinds)], axis=0)
 
     @property
@@ -410,7 +452,7 @@ class TreeModel(eqx.Module):
 
     def with_params(self, **changes) -> "TreeModel":
         """A copy with some array leaves replaced (``inertia=``, ``origin_xyz=``, ``gravity=``, ...), unchecked."""
-        leaves = ("inertia", "origin_xyz", "gravity", "viscous", "coulomb", "rotor_inertia")
+        leaves = ("inertia", "origin_xyz", "gravity", "viscous", "coulomb", "rotor_inertia", "stiffness", "spring_ref")
         for k in changes:
             if k not in leaves:
                 raise ModelError(f"with_params: {k!r} is not a parameter leaf (one of {leaves})")
@@ -422,7 +464,8 @@ class TreeModel(eqx.Module):
 def _velocity_names(joint_names, kinds, mimic):
     for name, k, m in zip(joint_names, kinds, mimic):
         if not m:
-            yield from ([f"{name}:{c}" for c in FREE_VELOCITY] if k == FREE else [name])
+            yield from ([f"{name}:{c}" for c in FREE_VELOCITY] if k == FREE else
+                        [f"{name}:{c}" for c in FREE_VELOCITY[3:]] if k == BALL else [name])
 
 
 def _support(parents) -> np.ndarray:
