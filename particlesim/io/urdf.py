@@ -1,6 +1,6 @@
 """URDF import into a :class:`~particlesim.tree.TreeModel` (``xml.etree``; visual/collision ignored).
 
-Supported joints: ``revolute``/``continuous`` (both revolute; position limits not modelled, with a warning),
+Supported joints: ``revolute``/``continuous`` (both revolute; position limits modelled on request, else warned),
 ``prismatic`` and ``fixed``. ``<dynamics damping friction>`` become viscous and Coulomb friction.
 Fixed joints are merged away: a link welded to a moving link adds its inertia to that link (the report's
 10-vectors about a common origin simply add), and the joints below it are re-expressed in that link's frame; the
@@ -115,7 +115,7 @@ class UnmodelledLimitsWarning(UserWarning):
 
 def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, viscous=None, coulomb=None,
               rotor_inertia=None, limits: str = "warn", mimic: bool = True, inertia: str = "strict",
-              floating_base: bool = False) -> TreeModel:
+              floating_base: bool = False, limit_stiffness=None, limit_damping=None) -> TreeModel:
     """Build a :class:`TreeModel` from a URDF file path or a URDF XML string.
 
     ``gravity`` is in the frame of the root link. Joint friction: the file's ``<dynamics damping=... friction=...>``
@@ -123,8 +123,11 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
     argument replaces the file's values for every joint); ``rotor_inertia`` (eq. 18) is not a URDF field; these arguments have one entry per coordinate. ``mimic=True``
     (default) reduces ``<mimic>`` joints to their sources (``model.nq`` counts coordinates, ``model.n_joints``
     joints); ``mimic=False`` keeps them independent. Joint
-    position limits are not modelled: ``limits="warn"`` (default) warns (:class:`UnmodelledLimitsWarning`) naming
-    the limited joints, ``"ignore"`` accepts that silently. Raises :class:`ParseError` naming the link/joint for
+    position limits are not modelled by default: ``limits="warn"`` (default) warns
+    (:class:`UnmodelledLimitsWarning`) naming the limited joints, ``"ignore"`` accepts that silently, and
+    ``"model"`` makes them soft limits (``TreeModel.limits``: a one-sided spring-damper beyond each bound) with
+    ``limit_stiffness`` (N m/rad or N/m) and ``limit_damping`` (N m s/rad or N s/m), one value or one per coordinate
+    (both required). Raises :class:`ParseError` naming the link/joint for
     unparsable files, unsupported joint types, duplicate names and kinematic loops.
 
     ``floating_base=True`` joins the root link to the world by a free joint named ``'root_joint'`` (Pinocchio's
@@ -141,8 +144,10 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
     unchanged; both warn (:class:`~particlesim.errors.InertiaWarning`) naming every such link. Negative or zero
     masses with a nonzero tensor are refused in every mode.
     """
-    if limits not in ("warn", "ignore"):
-        raise ValueError(f"limits must be 'warn' or 'ignore', got {limits!r}")
+    if limits not in ("warn", "ignore", "model"):
+        raise ValueError(f"limits must be 'warn', 'ignore' or 'model', got {limits!r}")
+    if (limits == "model") != (limit_stiffness is not None and limit_damping is not None):
+        raise ValueError("limits='model' needs limit_stiffness and limit_damping (and they mean nothing without it)")
     if inertia not in ("strict", "balance", "warn"):
         raise ValueError(f"inertia must be 'strict', 'balance' or 'warn', got {inertia!r}")
     label, root = read_urdf(source)
@@ -204,8 +209,10 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
         lim = el.find("limit")
         limited = jtype in ("revolute", "prismatic") and lim is not None and (
             lim.get("lower") is not None or lim.get("upper") is not None)
+        bounds = (_floats(lim.get("lower"), 1, [-np.inf], f"{where} limit lower")[0],
+                  _floats(lim.get("upper"), 1, [np.inf], f"{where} limit upper")[0]) if limited else (-np.inf, np.inf)
         joints.append(dict(name=name, kind=_KINDS[jtype], parent=parent, child=child, r0=r0, p0=p0, axis=axis,
-                           damping=damping, friction=friction, limited=limited, mimic=follows))
+                           damping=damping, friction=friction, limited=limited, mimic=follows, bounds=bounds))
     roots = [ln for ln in links if ln not in parent_joint]
     if len(roots) != 1:
         raise ParseError(f"{label}: expected one root link, found {roots or 'none (kinematic loop)'}")
@@ -214,7 +221,7 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
         if "root_joint" in seen_names:
             raise ParseError(f"{label}: a joint is already named 'root_joint', the name of the floating base's joint")
         movable.insert(0, dict(name="root_joint", kind=FREE, parent=None, child=roots[0], axis=np.array([1.0, 0, 0]),
-                               damping=0.0, friction=0.0, limited=False, mimic=None))
+                               damping=0.0, friction=0.0, limited=False, mimic=None, bounds=(-np.inf, np.inf)))
     index = {jt["name"]: i for i, jt in enumerate(movable)}
     # Walk the tree from the root: owner body (-1 = world) and pose of every link in its owner's frame.
     owner = {roots[0]: 0 if floating_base else -1}
@@ -265,8 +272,23 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
         viscous = base + [damping[jt["name"]] for jt in coords]
     if coulomb is None and any(friction.values()):
         coulomb = base + [friction[jt["name"]] for jt in coords]
-    limited = [jt["name"] for jt in movable if jt["limited"]]
-    if limited and limits == "warn":
+    limited = [jt["name"] for jt in movable if jt["limited"] and (limits != "model" or jt["mimic"] is not None)]
+    soft = None
+    if limits == "model":  # per velocity coordinate: [lower, upper, stiffness, damping]
+        nv = sum(6 if jt["kind"] == FREE else 1 for jt in movable if jt["mimic"] is None)
+        soft = np.zeros((nv, 4))
+        at = 0
+        for jt in movable:
+            if jt["mimic"] is None:
+                w = 6 if jt["kind"] == FREE else 1
+                soft[at:at + w, 0], soft[at:at + w, 1] = jt["bounds"]
+                at += w
+        for col, (arg, value) in ((2, ("limit_stiffness", limit_stiffness)), (3, ("limit_damping", limit_damping))):
+            v = np.asarray(value, dtype=float)
+            if v.shape not in ((), (nv,)):
+                raise ValueError(f"{arg} must be one value or one per velocity coordinate ({nv}), got shape {v.shape}")
+            soft[:, col] = v
+    if limited and limits != "ignore":
         import warnings
 
         warnings.warn(f"{label}: joint position limits of {len(limited)} joint(s) are not modelled (e.g. "
@@ -319,6 +341,7 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
             rotor_inertia=rotor_inertia,
             frames=frames,
             mimic=mimics,
+            limits=soft,
             validate_inertia=inertia != "warn",
         )
     except ModelError as e:

@@ -19,6 +19,7 @@ from .dynamics import (
     inverse_dynamics,
     mass_matrix,
     spring_torques,
+    limit_torques,
 )
 from .energy import kinetic_energy, link_kinetic_energies, potential_energy
 from .kinematics import spring_deflections, frame_pose, link_jacobian, link_jacobians, link_poses, link_velocities, wrench_torques
@@ -42,6 +43,7 @@ __all__ = [
     "inverse_dynamics",
     "friction_torques",
     "spring_torques",
+    "limit_torques",
     "spring_deflections",
     "link_poses",
     "link_velocities",

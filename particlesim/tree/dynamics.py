@@ -24,7 +24,7 @@ from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, ArrayLike, Float
 
 from .energy import split_params
-from .kinematics import _mm, _mv, link_poses, spring_deflections, world_axes
+from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from ..errors import ModelError
 from .model import TreeModel
 
@@ -35,6 +35,7 @@ __all__ = [
     "gravity_torques",
     "friction_torques",
     "spring_torques",
+    "limit_torques",
     "inverse_dynamics",
     "forward_dynamics",
 ]
@@ -180,6 +181,18 @@ def spring_torques(model: TreeModel, q: Float[ArrayLike, " nq"]) -> Float[Array,
     return -model.stiffness * spring_deflections(model, q)
 
 
+def limit_torques(model: TreeModel, q: Float[ArrayLike, " nq"], qd: Float[ArrayLike, " nv"]) -> Float[Array, " nv"]:
+    """Soft joint limits: ``-k d - c qd`` while a coordinate is beyond a bound by ``d`` (zero inside), per velocity
+    coordinate; zero, and free, without ``limits``. The damping acts only during a violation (as MuJoCo's soft
+    limits), so the force jumps when a moving joint reaches its bound: an integrator meets a kink there."""
+    qd = jnp.asarray(qd)
+    if model.limits is None:
+        return jnp.zeros_like(qd)
+    x = limit_deflections(model, q)
+    lo, hi, k, c = (model.limits[:, i] for i in range(4))
+    return jnp.where(x != 0.0, -k * x - c * qd, 0.0)
+
+
 def inverse_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"],
                      qdd: Float[ArrayLike, " n"], *, smooth_friction: Optional[float] = None) -> Float[Array, " n"]:
     """``tau = A qdd + C qd + Q + Gamma_f`` (eqs. 3, 17, 18)."""
@@ -192,6 +205,8 @@ def inverse_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Arra
         tau = tau + friction_torques(model, qd, smooth_friction=smooth_friction)
     if model.stiffness is not None:
         tau = tau - spring_torques(model, q)
+    if model.limits is not None:
+        tau = tau - limit_torques(model, q, qd)
     return tau
 
 
@@ -210,4 +225,6 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[Arra
         rhs = rhs - friction_torques(model, qd, smooth_friction=smooth_friction)
     if model.stiffness is not None:
         rhs = rhs + spring_torques(model, q)
+    if model.limits is not None:
+        rhs = rhs + limit_torques(model, q, qd)
     return cho_solve(cho_factor(_mass_matrix(model, b)), rhs)

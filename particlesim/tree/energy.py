@@ -10,7 +10,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .kinematics import link_poses, link_velocities, spring_deflections
+from .kinematics import limit_deflections, link_poses, link_velocities, spring_deflections
 from .model import TreeModel
 
 __all__ = ["split_params", "link_kinetic_energies", "kinetic_energy", "potential_energy"]
@@ -48,7 +48,7 @@ def kinetic_energy(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayL
 
 def potential_energy(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Array, ""]:
     """Gravity potential, eq. (15): ``U = -sum_j g^T (m_j P_j + A_j MS_j)`` with world gravity ``g``, plus the
-    joint springs' ``1/2 sum K d(q)^2`` when the model has ``stiffness``."""
+    joint springs' ``1/2 sum K d(q)^2`` when the model has ``stiffness`` and the soft limits' when it has ``limits``."""
     rot, pos = link_poses(model, q)
     m, ms, _ = split_params(model.inertia)
     first_moment = m[:, None] * pos + (rot @ ms[..., None])[..., 0]
@@ -56,4 +56,7 @@ def potential_energy(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Array
     if model.stiffness is not None:
         d = spring_deflections(model, q)
         u = u + 0.5 * jnp.sum(model.stiffness * d * d)
+    if model.limits is not None:
+        d = limit_deflections(model, q)
+        u = u + 0.5 * jnp.sum(model.limits[:, 2] * d * d)
     return u

@@ -27,6 +27,7 @@ __all__ = [
     "frame_pose",
     "wrench_torques",
     "spring_deflections",
+    "limit_deflections",
 ]
 
 
@@ -248,3 +249,19 @@ def spring_deflections(model: TreeModel, q: Float[ArrayLike, " nq"]) -> Float[Ar
             parts.append(q[iq:iq + 1] - ref[iq:iq + 1])
         iq += {FREE: 7, BALL: 4}.get(kind, 1)
     return jnp.concatenate(parts)
+
+
+def limit_deflections(model: TreeModel, q: Float[ArrayLike, " nq"]) -> Float[Array, " nv"]:
+    """How far each coordinate is beyond its soft limit (``q - upper > 0``, ``q - lower < 0``, else 0), per velocity
+    coordinate (free and ball coordinates: 0)."""
+    q = jnp.asarray(q)
+    pos, iq = [], 0
+    for kind, m in zip(model.kinds, model.mimic):
+        if m:
+            continue
+        nq, nv = {FREE: (7, 6), BALL: (4, 3)}.get(kind, (1, 1))
+        pos.append(jnp.zeros(nv) if nv > 1 else q[iq:iq + 1])
+        iq += nq
+    x = jnp.concatenate(pos)
+    lo, hi = model.limits[:, 0], model.limits[:, 1]
+    return jnp.minimum(x - lo, 0.0) + jnp.maximum(x - hi, 0.0)

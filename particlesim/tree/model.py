@@ -18,8 +18,10 @@ Differentiable ``jax.Array`` leaves:
 * ``gravity`` ``(3,)`` in the world frame;
 * optional per-coordinate ``viscous`` (``Fv``), ``coulomb`` (``Fc``) (eq. 17) and ``rotor_inertia``
   (``I_a = N^2 J_m``, eq. 18), and joint springs ``stiffness`` (per velocity coordinate) about ``spring_ref`` (a
-  configuration, default the zero one), as MuJoCo's joint ``stiffness``/``springref``. ``None`` means absent: the
-  code path is skipped at trace time and costs nothing.
+  configuration, default the zero one), as MuJoCo's joint ``stiffness``/``springref``, and optional soft joint
+  ``limits`` ``(nv, 4)``: per velocity coordinate ``[lower, upper, stiffness, damping]``, a one-sided
+  spring-damper that acts only beyond a bound (``-inf``/``inf`` for none; hinges and slides only). ``None`` means
+  absent: the code path is skipped at trace time and costs nothing.
 
 Mimic joints (URDF ``<mimic>``, Pinocchio's ``mimic=True``): joint ``i`` may follow another joint ``s`` as
 ``q_i = multiplier * q_s + offset``. It then has no coordinate of its own: the model's coordinates ``q`` (length
@@ -117,6 +119,7 @@ class TreeModel(eqx.Module):
     rotor_inertia: Optional[Float[Array, " n"]]
     stiffness: Optional[Float[Array, " nv"]]
     spring_ref: Optional[Float[Array, " nq"]]
+    limits: Optional[Float[Array, "nv 4"]]
     link_names: tuple = eqx.field(static=True)
     joint_names: tuple = eqx.field(static=True)
     parents: tuple = eqx.field(static=True)
@@ -143,6 +146,7 @@ class TreeModel(eqx.Module):
         rotor_inertia: Optional[ArrayLike] = None,
         stiffness: Optional[ArrayLike] = None,
         spring_ref: Optional[ArrayLike] = None,
+        limits: Optional[ArrayLike] = None,
         frames: Optional[Sequence] = None,
         mimic: Optional[dict] = None,
         validate_inertia: bool = True,
@@ -243,6 +247,7 @@ class TreeModel(eqx.Module):
             self.spring_ref = ref
         elif spring_ref is not None:
             raise ModelError("spring_ref given without stiffness")
+        self.limits = None if limits is None else _limits(limits, coords, kinds, self.mimic)
         self.link_names = link_names
         self.joint_names = joint_names
         self.parents = parents
@@ -452,13 +457,35 @@ class TreeModel(eqx.Module):
 
     def with_params(self, **changes) -> "TreeModel":
         """A copy with some array leaves replaced (``inertia=``, ``origin_xyz=``, ``gravity=``, ...), unchecked."""
-        leaves = ("inertia", "origin_xyz", "gravity", "viscous", "coulomb", "rotor_inertia", "stiffness", "spring_ref")
+        leaves = ("inertia", "origin_xyz", "gravity", "viscous", "coulomb", "rotor_inertia", "stiffness", "spring_ref",
+                  "limits")
         for k in changes:
             if k not in leaves:
                 raise ModelError(f"with_params: {k!r} is not a parameter leaf (one of {leaves})")
         names = list(changes)
         return eqx.tree_at(lambda m: [getattr(m, k) for k in names], self,
                            [jnp.asarray(changes[k], dtype=float) for k in names], is_leaf=lambda x: x is None)
+
+
+def _limits(limits, coords, kinds, mimic) -> Array:
+    """Validated soft limits ``(nv, 4)``: ``[lower, upper, stiffness, damping]`` per velocity coordinate."""
+    a = jnp.asarray(limits, dtype=float)
+    if a.shape != (len(coords), 4):
+        raise ModelError(f"limits must have shape ({len(coords)}, 4) ([lower, upper, stiffness, damping] per velocity "
+                         f"coordinate), got {a.shape}")
+    if _concrete(a):
+        x = np.asarray(a)
+        multi = np.concatenate([[k in (FREE, BALL)] * _NV.get(k, 1) for k, m in zip(kinds, mimic) if not m])
+        for i, name in enumerate(coords):
+            lo, hi, k, d = x[i]
+            if np.isnan(x[i]).any() or not (np.isfinite(k) and np.isfinite(d)):
+                raise ModelError(f"limits of '{name}': NaN, or an infinite stiffness or damping: {x[i].tolist()}")
+            if k < 0 or d < 0 or lo > hi:
+                raise ModelError(f"limits of '{name}': need lower <= upper and non-negative stiffness and damping, "
+                                 f"got {x[i].tolist()}")
+            if multi[i] and (np.isfinite(lo) or np.isfinite(hi)):
+                raise ModelError(f"limits of '{name}': free and ball joints take no limits (use -inf, inf)")
+    return a
 
 
 def _velocity_names(joint_names, kinds, mimic):

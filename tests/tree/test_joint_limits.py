@@ -1,0 +1,58 @@
+"""Soft joint limits (optional, off by default): a one-sided spring-damper beyond each bound, against the closed
+form of a rotor bouncing off its stop."""
+
+import numpy as np
+import pytest
+
+from particlesim.errors import ModelError
+from particlesim.simulate import simulate
+from particlesim.tree import TreeModel, forward_dynamics, limit_torques, load_urdf, potential_energy
+
+#: Adaptive Dopri8 at rtol 1e-11 stepping through the two kinks (contact, release) against the closed form.
+CLOSED_FORM_TOL = 1e-9  # measured 2e-11
+I_ZZ, K, C, UPPER, W0 = 0.05, 50.0, 0.5, 0.1, 1.0
+ROTOR = ('<robot name="rotor"><link name="base"/><link name="disc"><inertial><mass value="2"/>'
+         f'<inertia ixx="0.03" ixy="0" ixz="0" iyy="0.03" iyz="0" izz="{I_ZZ}"/></inertial></link>'
+         '<joint name="spin" type="revolute"><parent link="base"/><child link="disc"/><axis xyz="0 0 1"/>'
+         f'<limit lower="-1" upper="{UPPER}" effort="1" velocity="1"/></joint></robot>')
+
+
+def test_rotor_bouncing_off_its_stop_matches_the_closed_form():
+    model = load_urdf(ROTOR, limits="model", limit_stiffness=K, limit_damping=C)
+    np.testing.assert_array_equal(np.asarray(model.limits), [[-1.0, UPPER, K, C]])
+    t_in = UPPER / W0  # free flight to the stop
+    wn, zeta = np.sqrt(K / I_ZZ), C / (2.0 * np.sqrt(K * I_ZZ))
+    wd = wn * np.sqrt(1.0 - zeta**2)
+    t_out = t_in + np.pi / wd  # the damped half-oscillation beyond the stop
+    w_out = -W0 * np.exp(-zeta * wn * np.pi / wd)
+    ts = np.array([t_in + 0.3 * np.pi / wd, 0.5])
+    sol = simulate(forward_dynamics, model, np.zeros(1), np.array([W0]), 0.0, 0.5, saveat_ts=ts, rtol=1e-11,
+                   atol=1e-13, solver="dopri8")
+    tau = ts[0] - t_in
+    inside = UPPER + W0 / wd * np.exp(-zeta * wn * tau) * np.sin(wd * tau)
+    after = UPPER + w_out * (0.5 - t_out)
+    np.testing.assert_allclose(np.asarray(sol.q)[:, 0], [inside, after], rtol=0, atol=CLOSED_FORM_TOL)
+    np.testing.assert_allclose(float(sol.qd[-1, 0]), w_out, rtol=0, atol=CLOSED_FORM_TOL)
+    # the stop's spring is part of the potential; inside the bounds it is free
+    assert float(potential_energy(model, np.array([UPPER + 0.02]))) == pytest.approx(0.5 * K * 0.02**2, rel=1e-12)
+    assert float(limit_torques(model, np.array([0.05]), np.array([3.0]))[0]) == 0.0
+
+
+def test_limits_are_off_by_default_and_refused_when_malformed():
+    with pytest.warns(UserWarning, match="position limits of 1 joint"):
+        assert load_urdf(ROTOR).limits is None
+    with pytest.raises(ValueError, match="limits='model' needs limit_stiffness and limit_damping"):
+        load_urdf(ROTOR, limits="model", limit_stiffness=1.0)
+    with pytest.raises(ValueError, match="limit_damping must be one value or one per velocity coordinate"):
+        load_urdf(ROTOR, limits="model", limit_stiffness=1.0, limit_damping=[1.0, 2.0])
+    kw = dict(parents=[-1], kinds=["revolute"], axes=[[0, 0, 1.0]], origin_rotations=[np.eye(3)],
+              origin_xyz=np.zeros((1, 3)), inertia=[[1.0, 0, 0, 0, 1, 0, 0, 1, 0, 1]], joint_names=["j"])
+    with pytest.raises(ModelError, match="limits of 'j': need lower <= upper"):
+        TreeModel(**kw, limits=[[0.5, -0.5, 1.0, 1.0]])
+    with pytest.raises(ModelError, match="limits of 'j': need lower <= upper and non-negative stiffness"):
+        TreeModel(**kw, limits=[[-0.5, 0.5, -1.0, 1.0]])
+    with pytest.raises(ModelError, match=r"limits must have shape \(1, 4\)"):
+        TreeModel(**kw, limits=[-0.5, 0.5, 1.0, 1.0])
+    free = dict(kw, kinds=["free"])
+    with pytest.raises(ModelError, match="free and ball joints take no limits"):
+        TreeModel(**free, limits=[[-1.0, 1.0, 1.0, 1.0]] + [[-np.inf, np.inf, 0.0, 0.0]] * 5)
