@@ -44,7 +44,7 @@ def _mujoco(geom, dt):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("joint", ["revolute", "spherical"])
-@pytest.mark.parametrize("n", [2, 5, 10])
+@pytest.mark.parametrize("n", [2, 10])  # (5 links added nothing 2 and 10 do not check; cut for time)
 def test_chain_matches_mujoco_within_integrator_error(joint, n):
     geom = chain_geometry(n, joint, seed=n)
     mech, x0 = chain_mechanism(geom)
