@@ -76,6 +76,12 @@ def _names(m, obj, count, fallback) -> list:
     return out
 
 
+def mimic_names(m: mujoco.MjModel, joint_names) -> set:
+    """Joints that active ``<equality><joint>`` couplings make followers."""
+    return {joint_names[int(m.eq_obj1id[e])] for e in range(m.neq)
+            if m.eq_active0[e] and m.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT}
+
+
 def joint_ids(model: TreeModel, m: mujoco.MjModel) -> list:
     """MuJoCo's joint id of every joint of ``model`` (from :func:`load_mjcf` of ``m``), in the model's order."""
     names = _names(m, mujoco.mjtObj.mjOBJ_JOINT, m.njnt, "joint")
@@ -83,15 +89,18 @@ def joint_ids(model: TreeModel, m: mujoco.MjModel) -> list:
 
 
 def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = "warn",
-              friction: bool = True) -> TreeModel:
+              friction: bool = True, limit_stiffness=None, limit_damping=None) -> TreeModel:
     """Build a :class:`TreeModel` from an MJCF file path, MJCF XML text or a compiled ``mujoco.MjModel``.
 
-    ``friction=False`` drops ``damping``/``frictionloss``/``armature``. ``limits`` as in
-    :func:`~particlesim.io.urdf.load_urdf`. Raises :class:`ParseError` naming the body or joint for what the tree
+    ``friction=False`` drops ``damping``/``frictionloss``/``armature``. ``limits``, ``limit_stiffness`` and
+    ``limit_damping`` as in :func:`~particlesim.io.urdf.load_urdf` (``"model"`` turns hinge and slide ranges into
+    soft limits; ball-joint cone limits stay unmodelled and are warned about). Raises :class:`ParseError` naming the body or joint for what the tree
     model cannot represent (see the module docstring).
     """
-    if limits not in ("warn", "ignore"):
-        raise ValueError(f"limits must be 'warn' or 'ignore', got {limits!r}")
+    if limits not in ("warn", "ignore", "model"):
+        raise ValueError(f"limits must be 'warn', 'ignore' or 'model', got {limits!r}")
+    if (limits == "model") != (limit_stiffness is not None and limit_damping is not None):
+        raise ValueError("limits='model' needs limit_stiffness and limit_damping (and they mean nothing without it)")
     label, m = _compile(source)
 
     body_names = _names(m, mujoco.mjtObj.mjOBJ_BODY, m.nbody, "body")
@@ -157,7 +166,25 @@ def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = 
         raise ParseError(f"{label}: the model has no joints (nothing moves)")
     n = len(links)
     limited = [joint_names[lk["jnt"]] for lk in links if lk["kind"] != FREE and m.jnt_limited[lk["jnt"]]]
-    if limited and limits == "warn":
+    soft = None
+    if limits == "model":  # hinge and slide ranges as soft limits; a ball's cone limit is not representable
+        soft, modelled = [], set()
+        for lk in links:
+            j, w = lk["jnt"], {FREE: 6, BALL: 3}.get(lk["kind"], 1)
+            if lk["joint"] in mimic_names(m, joint_names):
+                continue
+            on = w == 1 and m.jnt_limited[j]
+            soft += [[*(m.jnt_range[j] if on else (-np.inf, np.inf)), 0.0, 0.0]] * w
+            modelled |= {joint_names[j]} if on else set()
+        soft = np.array(soft)
+        for col, (arg, value) in ((2, ("limit_stiffness", limit_stiffness)), (3, ("limit_damping", limit_damping))):
+            v = np.asarray(value, dtype=float)
+            if v.shape not in ((), (len(soft),)):
+                raise ValueError(f"{arg} must be one value or one per velocity coordinate ({len(soft)}), got "
+                                 f"shape {v.shape}")
+            soft[:, col] = v
+        limited = [x for x in limited if x not in modelled]
+    if limited and limits != "ignore":
         warnings.warn(f"{label}: joint ranges of {len(limited)} joint(s) are not modelled (e.g. "
                       f"{', '.join(repr(x) for x in limited[:4])}): the joints move freely past them. Pass "
                       "limits='ignore' to accept this silently", UnmodelledLimitsWarning, stacklevel=2)
@@ -241,6 +268,7 @@ def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = 
             joint_names=[lk["joint"] for lk in links],
             frames=frames,
             mimic=mimic,
+            limits=soft,
             **extra,
         )
     except ModelError as e:

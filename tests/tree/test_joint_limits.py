@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from particlesim.errors import ModelError
+from particlesim.io import load_mjcf
 from particlesim.simulate import simulate
 from particlesim.tree import TreeModel, forward_dynamics, limit_torques, load_urdf, potential_energy
 
@@ -56,3 +57,12 @@ def test_limits_are_off_by_default_and_refused_when_malformed():
     free = dict(kw, kinds=["free"])
     with pytest.raises(ModelError, match="free and ball joints take no limits"):
         TreeModel(**free, limits=[[-1.0, 1.0, 1.0, 1.0]] + [[-np.inf, np.inf, 0.0, 0.0]] * 5)
+
+
+def test_mjcf_ranges_become_soft_limits_and_ball_cones_are_said():
+    xml = """<mujoco><compiler angle="radian"/><worldbody><body><joint name="hinge" range="-0.5 0.7" limited="true"/><geom size="0.1"/>
+    <body pos="0 0 -0.3"><joint name="cone" type="ball" range="0 0.4" limited="true"/><geom size="0.1"/></body>
+    </body></worldbody></mujoco>"""
+    with pytest.warns(UserWarning, match="joint ranges of 1 joint\\(s\\) are not modelled \\(e.g. 'cone'\\)"):
+        model = load_mjcf(xml, limits="model", limit_stiffness=30.0, limit_damping=0.2)
+    np.testing.assert_array_equal(np.asarray(model.limits), [[-0.5, 0.7, 30.0, 0.2]] + [[-np.inf, np.inf, 30.0, 0.2]] * 3)
