@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 
 from particlesim.errors import ModelError, ParseError
-from particlesim.tree import (TreeModel, bias_forces, forward_dynamics, friction_torques, gravity_torques,
-                              inverse_dynamics, kinetic_energy, link_jacobian, load_urdf, mass_matrix)
-from tree_helpers import PinocchioOracle, max_rel, random_tree_urdf
+from particlesim.tree import TreeModel, forward_dynamics, friction_torques, kinetic_energy, load_urdf, mass_matrix
+from tree_helpers import PinocchioOracle, batched_terms, max_rel, random_tree_urdf, states
 
 #: Both sides are float64 implementations of the same reduced rigid-body model.
 PIN_RTOL = 1e-10
 #: Hessian of the kinetic energy (autodiff) against the composite-inertia mass matrix.
 LAGRANGE_RTOL = 1e-12
 GRAVITY = (0.2, -9.81, 0.4)
+N_STATES = 50
 
 
 def with_mimics(urdf: str, mimics: dict, *, damping: dict | None = None) -> str:
@@ -51,23 +51,22 @@ def test_mimic_trees_against_pinocchio(seed, n, mimics):
     assert (model.n_joints, model.nq) == (n, n - len(mimics))
     assert set(model.coordinate_names) == {f"j{i}" for i in range(n)} - set(mimics)
     oracle = PinocchioOracle(urdf, model.coordinate_names, GRAVITY, mimic=True)
-    rng = np.random.default_rng(seed)
-    for _ in range(1):  # one state per tree (eager evaluation of every Jacobian is the cost here)
-        q, qd, tau = rng.uniform(-2, 2, model.nq), rng.normal(size=model.nq), rng.normal(size=model.nq)
-        m_ref, b_ref = oracle.mass_matrix(q), oracle.bias(q, qd)
-        assert max_rel(mass_matrix(model, q), m_ref) <= PIN_RTOL
-        assert max_rel(bias_forces(model, q, qd), b_ref) <= PIN_RTOL
-        assert max_rel(gravity_torques(model, q), oracle.gravity(q)) <= PIN_RTOL
-        qdd_ref = np.linalg.solve(m_ref, tau - b_ref)
-        assert max_rel(forward_dynamics(model, q, qd, tau), qdd_ref) <= PIN_RTOL
-        assert max_rel(inverse_dynamics(model, q, qd, qdd_ref), tau) <= PIN_RTOL
-        for link in model.link_names:  # followers' links included
+    q, qd, tau, qdd = states(np.random.default_rng(seed), N_STATES, model.nq, model.nq)
+    out = batched_terms(model, model.link_names)(q, qd, tau, qdd)  # followers' links included
+    for s in range(N_STATES):
+        m_ref, b_ref = oracle.mass_matrix(q[s]), oracle.bias(q[s], qd[s])
+        assert max_rel(out["m"][s], m_ref) <= PIN_RTOL
+        assert max_rel(out["bias"][s], b_ref) <= PIN_RTOL
+        assert max_rel(out["grav"][s], oracle.gravity(q[s])) <= PIN_RTOL
+        assert max_rel(out["fd"][s], np.linalg.solve(m_ref, tau[s] - b_ref)) <= PIN_RTOL
+        assert max_rel(out["id"][s], m_ref @ qdd[s] + b_ref) <= PIN_RTOL
+        for link in model.link_names:
             for frame, local in (("world", False), ("local", True)):
-                ref = oracle.jacobian(q, link, local)
-                assert max_rel(link_jacobian(model, q, link, frame=frame), ref) <= PIN_RTOL, (link, frame)
-        # the Lagrangian route: A is the Hessian of the kinetic energy in the reduced velocities
-        hess = jax.hessian(lambda v: kinetic_energy(model, jnp.asarray(q), v))(jnp.asarray(qd))
-        assert max_rel(hess, m_ref) <= LAGRANGE_RTOL * 1e2
+                ref = oracle.jacobian(q[s], link, local)
+                assert max_rel(out["jac"][(link, frame)][s], ref) <= PIN_RTOL, (link, frame)
+    # the Lagrangian route: A is the Hessian of the kinetic energy in the reduced velocities
+    hess = jax.hessian(lambda v: kinetic_energy(model, jnp.asarray(q[0]), v))(jnp.asarray(qd[0]))
+    assert max_rel(hess, out["m"][0]) <= LAGRANGE_RTOL * 1e2
 
 
 def test_mimic_chain_composes_and_mimic_false_keeps_joints():

@@ -3,29 +3,32 @@
 import numpy as np
 import pytest
 
-from particlesim.tree import bias_forces, coriolis_times_qdot, gravity_torques, link_jacobian, load_urdf, mass_matrix
-from tree_helpers import KRANG_URDFS, PinocchioOracle, max_rel, random_tree_urdf
+from particlesim.tree import coriolis_times_qdot, load_urdf
+from tree_helpers import KRANG_URDFS, PinocchioOracle, batched_terms, max_rel, random_tree_urdf, states
 
 #: Both sides are float64 implementations of the same rigid-body model.
 PIN_RTOL = 1e-10
 GRAVITY = (0.0, -9.81, 0.0)
-N_STATES = 2
+N_STATES = 50
 
 
 def _compare(model, oracle, seed, jacobian_links):
     rng = np.random.default_rng(seed)
-    for _ in range(N_STATES):
-        q = rng.uniform(-2.0, 2.0, model.nq)
-        qd = rng.normal(size=model.nq)
-        g_ref = oracle.gravity(q)
-        assert max_rel(mass_matrix(model, q), oracle.mass_matrix(q)) <= PIN_RTOL
-        assert max_rel(bias_forces(model, q, qd), oracle.bias(q, qd)) <= PIN_RTOL
-        assert max_rel(gravity_torques(model, q), g_ref) <= PIN_RTOL
-        assert max_rel(coriolis_times_qdot(model, q, qd), oracle.bias(q, qd) - g_ref) <= PIN_RTOL
+    q, qd, tau, qdd = states(rng, N_STATES, model.nq, model.nq)
+    out = {k: np.asarray(v) if k != "jac" else {kk: np.asarray(vv) for kk, vv in v.items()}
+           for k, v in batched_terms(model, jacobian_links)(q, qd, tau, qdd).items()}
+    for s in range(N_STATES):
+        m_ref, b_ref, g_ref = oracle.mass_matrix(q[s]), oracle.bias(q[s], qd[s]), oracle.gravity(q[s])
+        assert max_rel(out["m"][s], m_ref) <= PIN_RTOL
+        assert max_rel(out["bias"][s], b_ref) <= PIN_RTOL
+        assert max_rel(out["grav"][s], g_ref) <= PIN_RTOL
+        assert max_rel(out["fd"][s], np.linalg.solve(m_ref, tau[s] - b_ref)) <= PIN_RTOL
+        assert max_rel(out["id"][s], m_ref @ qdd[s] + b_ref) <= PIN_RTOL
         for link in jacobian_links:
             for frame, local in (("world", False), ("local", True)):
-                ref = oracle.jacobian(q, link, local)
-                assert max_rel(link_jacobian(model, q, link, frame=frame), ref) <= PIN_RTOL, (link, frame)
+                assert max_rel(out["jac"][(link, frame)][s], oracle.jacobian(q[s], link, local)) <= PIN_RTOL
+    # C qd alone (the eager path) at one state
+    assert max_rel(coriolis_times_qdot(model, q[0], qd[0]), out["bias"][0] - out["grav"][0]) <= PIN_RTOL
 
 
 @pytest.mark.parametrize("name", KRANG_URDFS)

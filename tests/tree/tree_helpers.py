@@ -122,3 +122,29 @@ def max_rel(a, b) -> float:
     """``max |a - b| / max |b|`` (b is the reference)."""
     a, b = np.asarray(a), np.asarray(b)
     return float(np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300))
+
+
+def batched_terms(model, links):
+    """One compiled, vmapped evaluation of every tree quantity at a batch of states: M, bias, gravity, forward and
+    inverse dynamics, and world/local Jacobians of ``links`` (so many states cost one compile, not many eager runs)."""
+    import jax
+    import jax.numpy as jnp
+
+    from particlesim.tree import (bias_forces, forward_dynamics, gravity_torques, inverse_dynamics, link_jacobian,
+                                  mass_matrix)
+
+    def one(q, qd, tau, qdd):
+        jac = {(ln, f): link_jacobian(model, q, ln, frame=f) for ln in links for f in ("world", "local")}
+        return dict(m=mass_matrix(model, q), bias=bias_forces(model, q, qd), grav=gravity_torques(model, q),
+                    fd=forward_dynamics(model, q, qd, tau), id=inverse_dynamics(model, q, qd, qdd), jac=jac)
+
+    return jax.jit(jax.vmap(one))
+
+
+def states(rng, n_states, nq, nv, *, quaternions=()):
+    """Random states: positions in [-2, 2] (unit quaternions at the given configuration offsets), normal rates."""
+    q = rng.uniform(-2.0, 2.0, (n_states, nq))
+    for a in quaternions:
+        u = rng.normal(size=(n_states, 4))
+        q[:, a:a + 4] = u / np.linalg.norm(u, axis=1, keepdims=True)
+    return q, rng.normal(size=(n_states, nv)), rng.normal(size=(n_states, nv)), rng.normal(size=(n_states, nv))
