@@ -33,6 +33,7 @@ import mujoco
 import numpy as np
 
 from ..errors import ModelError, ParseError
+from ..spatial import quaternion_to_matrix
 from ..tree.model import BALL, FREE, PRISMATIC, REVOLUTE, TreeModel
 from .urdf import UnmodelledLimitsWarning
 
@@ -44,10 +45,9 @@ class UnmodelledElementsWarning(UserWarning):
 
 
 def _quat_wxyz(q) -> np.ndarray:
-    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    """Rotation of a MuJoCo quaternion ``[w, x, y, z]``."""
+    q = np.asarray(q, dtype=float)
+    return np.asarray(quaternion_to_matrix(np.array([q[1], q[2], q[3], q[0]])))
 
 
 def _compile(source) -> tuple[str, mujoco.MjModel]:

@@ -45,6 +45,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ..errors import InertiaError, ModelError
 from ..inertia import check_inertia
+from ..spatial import quaternion_to_matrix
 
 __all__ = ["TreeModel", "REVOLUTE", "PRISMATIC", "FREE", "BALL", "JOINT_KINDS"]
 
@@ -358,15 +359,12 @@ class TreeModel(eqx.Module):
             if k in (FREE, BALL):
                 quat = q[iq + 3:iq + 7] if k == FREE else q[iq:iq + 4]
                 v, w = (qd[iv:iv + 3], qd[iv + 3:iv + 6]) if k == FREE else (None, qd[iv:iv + 3])
-                x, y, z, s = quat
-                rot = jnp.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * s), 2 * (x * z + y * s)],
-                                 [2 * (x * y + z * s), 1 - 2 * (x * x + z * z), 2 * (y * z - x * s)],
-                                 [2 * (x * z - y * s), 2 * (y * z + x * s), 1 - 2 * (x * x + y * y)]])
-                vec = jnp.array([x, y, z])
+                vec, s = quat[:3], quat[3]
                 dvec = 0.5 * (s * w + jnp.cross(vec, w))  # quat (x) [w, 0], vector part
                 ds = -0.5 * jnp.dot(vec, w)
                 restore = QUATERNION_GAIN * (1.0 - jnp.dot(quat, quat)) * quat
-                parts += ([rot @ v] if k == FREE else []) + [jnp.concatenate([dvec, ds[None]]) + restore]
+                lin = [quaternion_to_matrix(quat) @ v] if k == FREE else []
+                parts += lin + [jnp.concatenate([dvec, ds[None]]) + restore]
                 iq, iv = iq + _NQ[k], iv + _NV[k]
             else:
                 parts.append(qd[iv:iv + 1])

@@ -69,7 +69,7 @@ class FreeFlyerOracle:
         return pin.getFrameJacobian(self.m, self.d, self.m.getFrameId(link), ref)[:, self.iv]
 
 
-@pytest.mark.parametrize("seed,n", [(2, 4), (5, 3)])
+@pytest.mark.parametrize("seed,n", [(2, 4)])
 def test_floating_tree_against_pinocchio_free_flyer(seed, n):
     urdf = floating_tree(seed, n)
     model = load_urdf(urdf, gravity=GRAVITY, limits="ignore", floating_base=True)
