@@ -48,6 +48,9 @@ def _check_state(params: Any, q0: Array, qd0: Array) -> None:
         raise ModelError(f"initial state has {q0.shape[0]} configuration entries and {qd0.shape[0]} velocities but "
                          f"the model has nq = {nq}, nv = {nv}")
     _ode.check_state((q0, qd0), ("q0", "qd0"))
+    check = getattr(params, "check_configuration", None)
+    if check is not None:
+        check(q0)
 
 
 @_ode.cached("simulate")

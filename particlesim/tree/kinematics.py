@@ -236,10 +236,8 @@ def spring_deflections(model: TreeModel, q: Float[ArrayLike, " nq"]) -> Float[Ar
     hinges and slides, the rotation vector of ``q_ref^-1 q`` (child axes) for ball joints (MuJoCo's ``subQuat``)."""
     q = jnp.asarray(q)
     ref = model.spring_ref
-    parts, iq = [], 0
-    for kind, m in zip(model.kinds, model.mimic):
-        if m:
-            continue
+    parts = []
+    for _, kind, iq, _ in model.coordinate_blocks():
         if kind == BALL:
             conj = ref[iq:iq + 4] * jnp.array([-1.0, -1.0, -1.0, 1.0])
             parts.append(_rotation_vector(_quat_mul(conj, q[iq:iq + 4])))
@@ -247,7 +245,6 @@ def spring_deflections(model: TreeModel, q: Float[ArrayLike, " nq"]) -> Float[Ar
             parts.append(jnp.zeros(6))  # no springs on free joints (refused at construction)
         else:
             parts.append(q[iq:iq + 1] - ref[iq:iq + 1])
-        iq += {FREE: 7, BALL: 4}.get(kind, 1)
     return jnp.concatenate(parts)
 
 
@@ -255,13 +252,7 @@ def limit_deflections(model: TreeModel, q: Float[ArrayLike, " nq"]) -> Float[Arr
     """How far each coordinate is beyond its soft limit (``q - upper > 0``, ``q - lower < 0``, else 0), per velocity
     coordinate (free and ball coordinates: 0)."""
     q = jnp.asarray(q)
-    pos, iq = [], 0
-    for kind, m in zip(model.kinds, model.mimic):
-        if m:
-            continue
-        nq, nv = {FREE: (7, 6), BALL: (4, 3)}.get(kind, (1, 1))
-        pos.append(jnp.zeros(nv) if nv > 1 else q[iq:iq + 1])
-        iq += nq
-    x = jnp.concatenate(pos)
+    x = jnp.concatenate([jnp.zeros(model.joint_nv[i]) if kind in (FREE, BALL) else q[iq:iq + 1]
+                         for i, kind, iq, _ in model.coordinate_blocks()])
     lo, hi = model.limits[:, 0], model.limits[:, 1]
     return jnp.minimum(x - lo, 0.0) + jnp.maximum(x - hi, 0.0)

@@ -345,6 +345,28 @@ class TreeModel(eqx.Module):
         g = jnp.asarray(self._maps(self.joint_nv)[0])
         return g.T @ a @ g
 
+    def coordinate_blocks(self):
+        """``(joint index, kind, q offset, qd offset)`` of every joint that owns coordinates, in order."""
+        iq = iv = 0
+        for i, (k, m) in enumerate(zip(self.kinds, self.mimic)):
+            if not m:
+                yield i, k, iq, iv
+                iq, iv = iq + _NQ.get(k, 1), iv + _NV.get(k, 1)
+
+    def check_configuration(self, q) -> None:
+        """Raise :class:`ModelError` naming the joint if a free or ball joint's quaternion in the concrete
+        configuration ``q`` is not of unit length (a zero or drifted quaternion would give NaN or a scaled frame)."""
+        if not _concrete(q) or not self.multi_dof:
+            return
+        q = np.asarray(q, dtype=float)
+        for i, k, iq, _ in self.coordinate_blocks():
+            if k in (FREE, BALL):
+                quat = q[iq + 3:iq + 7] if k == FREE else q[iq:iq + 4]
+                n = float(np.linalg.norm(quat))
+                if not abs(n - 1.0) <= 1e-6:
+                    raise ModelError(f"joint '{self.joint_names[i]}': its quaternion [qx, qy, qz, qw] in q has length "
+                                     f"{n!r}; give a unit quaternion")
+
     def configuration_rate(self, q, qd):
         """``dq/dt`` from the configuration ``q`` (nq) and velocity ``qd`` (nv): ``qd`` itself except on a free
         joint, whose position moves as ``R(quat) v`` and whose quaternion as ``1/2 quat * (w, 0)`` plus the
@@ -352,10 +374,8 @@ class TreeModel(eqx.Module):
         flow, so an integrator keeps it to its tolerance without renormalising the state after a step."""
         if not self.multi_dof:
             return qd
-        parts, iq, iv = [], 0, 0
-        for k, m in zip(self.kinds, self.mimic):
-            if m:
-                continue
+        parts = []
+        for _, k, iq, iv in self.coordinate_blocks():
             if k in (FREE, BALL):
                 quat = q[iq + 3:iq + 7] if k == FREE else q[iq:iq + 4]
                 v, w = (qd[iv:iv + 3], qd[iv + 3:iv + 6]) if k == FREE else (None, qd[iv:iv + 3])
@@ -365,10 +385,8 @@ class TreeModel(eqx.Module):
                 restore = QUATERNION_GAIN * (1.0 - jnp.dot(quat, quat)) * quat
                 lin = [quaternion_to_matrix(quat) @ v] if k == FREE else []
                 parts += lin + [jnp.concatenate([dvec, ds[None]]) + restore]
-                iq, iv = iq + _NQ[k], iv + _NV[k]
             else:
                 parts.append(qd[iv:iv + 1])
-                iq, iv = iq + 1, iv + 1
         return jnp.concatenate(parts)
 
     # ---- degrees of freedom: one per 1-DOF joint, six per free joint ----

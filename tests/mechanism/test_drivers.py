@@ -284,21 +284,20 @@ def test_free_pin_in_a_slot_conserves_energy():
 
 
 def test_slots_and_guides_of_zero_length_are_refused_by_name():
-    mb = MechanismBuilder(planar=True)
-    mb.ground("O", (0.0, 0.0))
-    mb.ground("O'", (0.0, 0.0))
-    mb.particle("A", (1.0, 0.0))
-    mb.particle("A'", (1.5, 0.0))
-    mb.rod("bar", "A", "A'", 1.0)
+    def bar_beside_coincident_points():
+        mb = MechanismBuilder(planar=True)
+        mb.ground("O", (0.0, 0.0))
+        mb.ground("O'", (0.0, 0.0))
+        mb.particle("A", (1.0, 0.0))
+        mb.particle("A'", (1.5, 0.0))
+        mb.rod("bar", "A", "A'", 1.0)
+        return mb
+
+    mb = bar_beside_coincident_points()
     mb.on_line("A", "O", ("O", "O'"), name="slot")
     with pytest.raises(ModelError, match="slot: the line's direction points 'O' and 'O'' coincide"):
         mb.build()
-    mb = MechanismBuilder(planar=True)
-    mb.ground("O", (0.0, 0.0))
-    mb.ground("O'", (0.0, 0.0))
-    mb.particle("A", (1.0, 0.0))
-    mb.particle("A'", (1.5, 0.0))
-    mb.rod("bar", "A", "A'", 1.0)
+    mb = bar_beside_coincident_points()
     mb.prismatic(("O", "O'"), ("A", "A'"), name="guide")
     with pytest.raises(ModelError, match="guide: the guide's axis points 'O' and 'O'' coincide"):
         mb.build()

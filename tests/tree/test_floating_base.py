@@ -8,6 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from particlesim import _ode
 from particlesim.errors import ModelError
 from particlesim.simulate import simulate
 from particlesim.tree import (TreeModel, bias_forces, christoffel_symbols, forward_dynamics, gravity_torques,
@@ -150,7 +151,13 @@ def test_floating_arm_against_a_mujoco_free_joint():
     quat /= np.linalg.norm(quat)
     q0 = np.concatenate([[0.0, 0.0, 1.0], quat, [0.4]])
     qd0 = np.array([0.3, -0.2, 0.5, 1.5, -0.7, 2.0, -1.0])
+    traces = _ode.TRACES["simulate"]
     sol = simulate(forward_dynamics, model, q0, qd0, 0.0, 1.0, rtol=1e-12, atol=1e-14, solver="dopri8")
+    # a new start, new inertial parameters and a new tolerance reuse the compiled floating-base rollout
+    heavier = model.with_params(inertia=model.inertia * 1.1)
+    simulate(forward_dynamics, heavier, q0 + np.r_[0.1, 0, 0, 0, 0, 0, 0, 0.2], qd0, 0.0, 0.5, rtol=1e-10,
+             atol=1e-12, solver="dopri8")
+    assert _ode.TRACES["simulate"] - traces <= 1
     m = mujoco.MjModel.from_xml_string(ARM_MJCF)
     d = mujoco.MjData(m)
     d.qpos[:] = np.concatenate([q0[:3], [quat[3], *quat[:3]], q0[7:]])  # MuJoCo: [w, x, y, z]
@@ -173,6 +180,8 @@ def test_floating_base_input_errors():
         forward_dynamics(model, np.zeros(8), np.zeros(8), np.zeros(7))
     with pytest.raises(ModelError, match="Christoffel symbols need one velocity per configuration entry"):
         christoffel_symbols(model, np.r_[0, 0, 0, 0, 0, 0, 1.0, 0])
+    with pytest.raises(ModelError, match=r"joint 'root_joint': its quaternion \[qx, qy, qz, qw\] in q has length 0.0"):
+        simulate(forward_dynamics, model, np.zeros(8), np.zeros(7), 0.0, 1.0)
     with pytest.raises(ModelError, match="nq = 8, nv = 7"):
         simulate(forward_dynamics, model, np.zeros(8), np.zeros(8), 0.0, 1.0)
     kw = dict(axes=np.eye(3)[:2], origin_rotations=np.stack([np.eye(3)] * 2), origin_xyz=np.zeros((2, 3)),
