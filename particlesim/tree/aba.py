@@ -1,0 +1,284 @@
+"""Forward dynamics by the articulated-body algorithm (ABA), O(N) in the links and vectorised over a batch.
+
+The same equations as :func:`~.dynamics.forward_dynamics` (``A qdd = tau - C qd - Q - Gamma_f``), solved without
+forming ``A``: Featherstone's three sweeps (Rigid Body Dynamics Algorithms, 2008, §7.3), written in world axes about
+the world origin as the rest of :mod:`.dynamics` (motion ``[w; v_0]``, force ``[n_0; f]``), so that an articulated
+inertia passes to its parent by a plain sum, with no frame change:
+
+1. outward: link poses, joint columns ``s_i``, velocities ``v_i = v_p + s_i qd_i``, velocity-product accelerations
+   ``c_i = v_i x s_i qd_i``, rigid inertias ``I_i`` and bias forces ``p_i = v_i x* I_i v_i``;
+2. inward: ``U_i = I^A_i s_i``, ``D_i = s_i . U_i + I_a,i`` (rotor inertia), ``u_i = tau_i - s_i . p^A_i``, and the
+   parent receives ``I^A_i - U_i U_i^T / D_i`` and ``p^A_i + I^a_i c_i + U_i u_i / D_i``;
+3. outward: ``a_i = a_p + c_i``, ``qdd_i = (u_i - U_i . a_i) / D_i``, ``a_i += s_i qdd_i`` from ``a_world = [0; -g]``.
+
+Layout: batch axes come *last* (a link's inertia is ``(6, 6, *B)``), so that every operation is one vectorised loop
+over the batch; under ``jax.vmap`` of a one-state function the batch would come first and every small product would
+loop over axes of length 3 or 6. Trees up to :data:`UNROLL_LINKS` links have their sweeps written out link by link
+(the fastest program; compile time grows with the tree); larger trees run each sweep as one ``lax.scan`` over the
+links, parents first, reading and accumulating parent rows of a stacked buffer (compile time flat in N, cost per
+state O(N)).
+
+Covers trees of revolute and prismatic joints (rotor inertia, viscous and Coulomb friction, joint springs and soft
+limits as generalised forces); models with mimic, free or ball joints use the composite-inertia path.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from .energy import split_params
+from .model import PRISMATIC, REVOLUTE, TreeModel
+
+__all__ = ["UNROLL_LINKS", "supports_aba", "aba"]
+
+
+@functools.lru_cache(maxsize=64)
+def _order(parents: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Links parents first, and each link's parent as a position in that order (``n``: the world)."""
+    n = len(parents)
+    depth = [-1] * n
+    while min(depth) < 0:  # parents are acyclic (checked by TreeModel): at most n passes
+        for i, p in enumerate(parents):
+            if depth[i] < 0 and (p < 0 or depth[p] >= 0):
+                depth[i] = 0 if p < 0 else depth[p] + 1
+    order = np.asarray(sorted(range(n), key=lambda i: (depth[i], i)), dtype=np.int32)
+    pos = np.empty(n, dtype=np.int32)
+    pos[order] = np.arange(n, dtype=np.int32)
+    parent_pos = np.asarray([pos[parents[i]] if parents[i] >= 0 else n for i in order], dtype=np.int32)
+    return order, parent_pos
+
+
+@functools.lru_cache(maxsize=64)
+def _children(parents: tuple) -> np.ndarray:
+    """``(n, C)`` positions (in :func:`_order`) of each link's children, padded with ``n``; at least one column."""
+    order, parent_pos = _order(parents)
+    n = len(parents)
+    kids = [[] for _ in range(n)]
+    for i, p in enumerate(parent_pos):
+        if p < n:
+            kids[p].append(i)
+    width = max(1, max(len(k) for k in kids))
+    return np.asarray([k + [n] * (width - len(k)) for k in kids], dtype=np.int32)
+
+
+#: Trees up to this many links unroll their sweeps (fastest program); larger ones keep a loop over links, so that
+#: the compiled program, and its compile time, do not grow with the tree.
+UNROLL_LINKS = 32
+
+
+def supports_aba(model: TreeModel) -> bool:
+    """Whether :func:`aba` covers the model: revolute and prismatic joints, no mimic joints."""
+    return all(k in (REVOLUTE, PRISMATIC) for k in model.kinds) and not any(model.mimic)
+
+
+def _tail(x, nb: int):
+    """``x`` with ``nb`` trailing singleton axes (constants against trailing batch axes)."""
+    return jnp.reshape(x, jnp.shape(x) + (1,) * nb)
+
+
+def _cross1(a, b):
+    """Cross product along axis 0 (``(3, *B)``)."""
+    return jnp.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def _mm1(a, b):
+    """``(3, 3, *B) @ (3, 3, *B)``."""
+    return jnp.sum(a[:, :, None] * b[None, :, :], 1)
+
+
+def _mv1(a, x):
+    """``(3, 3, *B) @ (3, *B)``."""
+    return jnp.sum(a * x[None], 1)
+
+
+def _skew1(h):
+    """``(3, *B)`` -> ``(3, 3, *B)`` with ``skew(h) v = h x v``."""
+    z = jnp.zeros_like(h[0])
+    return jnp.stack([jnp.stack([z, -h[2], h[1]]), jnp.stack([h[2], z, -h[0]]), jnp.stack([-h[1], h[0], z])])
+
+
+def _joint_transforms(model: TreeModel, q, order, dtype):
+    """Parent-from-child rotations ``(n, 3, 3, *B)`` and origins ``(n, 3, *B)`` of the links in ``order``:
+    ``R0 Rot(a, q) = cos q R0 (E - a a^T) + sin q R0 K + R0 a a^T`` (three constant matrices, no products)."""
+    nb = q.ndim - 1
+    n = len(order)
+    ax = model.axes_array[order]
+    rev = model.is_revolute[order]
+    r0 = model.origin_rotation_array[order]
+    aa = ax[:, :, None] * ax[:, None, :]
+    kk = np.zeros((n, 3, 3))
+    kk[:, 0, 1], kk[:, 0, 2], kk[:, 1, 2] = -ax[:, 2], ax[:, 1], -ax[:, 0]
+    kk = kk - np.swapaxes(kk, 1, 2)
+    m_cos = np.where(rev[:, None, None], r0 @ (np.eye(3) - aa), 0.0)
+    m_sin = np.where(rev[:, None, None], r0 @ kk, 0.0)
+    m_one = np.where(rev[:, None, None], r0 @ aa, r0)
+    is_rev = _tail(jnp.asarray(rev), nb)
+    angle = jnp.where(is_rev, q, 0.0)
+    cq, sq = jnp.cos(angle)[:, None, None], jnp.sin(angle)[:, None, None]
+    r_rel = (_tail(jnp.asarray(m_cos, dtype), nb) * cq + _tail(jnp.asarray(m_sin, dtype), nb) * sq
+             + _tail(jnp.asarray(m_one, dtype), nb))
+    slide = jnp.where(is_rev, 0.0, q)
+    p_rel = (_tail(model.origin_xyz[order], nb) + _tail(jnp.asarray((r0 @ ax[:, :, None])[..., 0], dtype), nb)
+             * slide[:, None])
+    return r_rel, p_rel
+
+
+def _outward(rot_p, pos_p, vel_p, r_rel, p_rel, axis, rev, qd, m, ms, jl, eye):
+    """Sweep 1 for one link: its pose, joint column ``s`` (6), velocity, velocity-product acceleration ``c``, rigid
+    inertia about ``O_0`` in world axes ``[[J0, skew(h)], [skew(h)^T, m E]]`` and bias force ``v x* I v``."""
+    nb = qd.ndim
+    rot = _mm1(rot_p, r_rel)
+    pos = pos_p + _mv1(rot_p, p_rel)
+    aw = _mv1(rot, _tail(axis, nb))
+    s = jnp.concatenate([rev * aw, rev * _cross1(pos, aw) + (1.0 - rev) * aw])
+    own = s * qd
+    vel = vel_p + own
+    w, v = vel[:3], vel[3:]
+    c = jnp.concatenate([_cross1(w, own[:3]), _cross1(w, own[3:]) + _cross1(v, own[:3])])
+    hl = _mv1(rot, _tail(ms, nb))
+    jw = _mm1(_mm1(rot, _tail(jl, nb)), jnp.swapaxes(rot, 0, 1))
+    pp = jnp.sum(pos * pos, 0)
+    ph = jnp.sum(pos * hl, 0)
+    j0 = (jw + (m * pp + 2.0 * ph) * eye - m * pos[:, None] * pos[None, :] - pos[:, None] * hl[None, :]
+          - hl[:, None] * pos[None, :])
+    hx = _skew1(m * pos + hl)
+    inertia = jnp.concatenate([jnp.concatenate([j0, hx], 1), jnp.concatenate([jnp.swapaxes(hx, 0, 1), m * eye], 1)])
+    mom = jnp.sum(inertia * vel[None], 1)
+    bias = jnp.concatenate([_cross1(w, mom[:3]) + _cross1(v, mom[3:]), _cross1(w, mom[3:])])
+    return rot, pos, vel, s, c, inertia, bias
+
+
+def _inward(ia, pa, s, c, tau, arm):
+    """Sweep 2 for one link: ``U``, ``1/D``, ``u`` and what the parent receives (articulated inertia and bias)."""
+    u_vec = jnp.sum(ia * s[None], 1)
+    dinv = 1.0 / (jnp.sum(s * u_vec, 0) + arm)
+    u = tau - jnp.sum(s * pa, 0)
+    ia = ia - u_vec[:, None] * u_vec[None, :] * dinv
+    pa = pa + jnp.sum(ia * c[None], 1) + u_vec * (u * dinv)
+    return u_vec, dinv, u, ia, pa
+
+
+def _acceleration(a_p, c, u_vec, dinv, u, s):
+    """Sweep 3 for one link: its joint acceleration and spatial acceleration."""
+    a = a_p + c
+    qdd = (u - jnp.sum(u_vec * a, 0)) * dinv
+    return a + s * qdd, qdd
+
+
+def _aba_unrolled(model: TreeModel, q, qd, tau):
+    """The sweeps written out link by link: every link's arrays are separate values of the program, so XLA fuses
+    each link's arithmetic into a few loops over the batch."""
+    n, dtype, nb = model.n_joints, q.dtype, q.ndim - 1
+    every = np.arange(n)
+    r_rel, p_rel = _joint_transforms(model, q, every, dtype)
+    m, ms, jl = split_params(model.inertia)
+    ax, rev = jnp.asarray(model.axes_array, dtype), model.is_revolute.astype(float)
+    arm = jnp.zeros(n, dtype) if model.rotor_inertia is None else model.rotor_inertia
+    eye = _tail(jnp.eye(3, dtype=dtype), nb) + jnp.zeros(q.shape[1:], dtype)
+    world = (eye, jnp.zeros((3,) + q.shape[1:], dtype), jnp.zeros((6,) + q.shape[1:], dtype))
+    order = model.topological_order
+    state, link = {}, {}
+    for i in order:
+        k = model.parents[i]
+        out = _outward(*(world if k < 0 else state[k]), r_rel[i], p_rel[i], ax[i], rev[i], qd[i], m[i], ms[i],
+                       jl[i], eye)
+        state[i], link[i] = out[:3], list(out[3:])  # (rot, pos, vel), [s, c, inertia, bias]
+    swept = {}
+    for i in reversed(order):
+        s, c, ia, pa = link[i]
+        u_vec, dinv, u, ia, pa = _inward(ia, pa, s, c, tau[i], arm[i])
+        swept[i] = (u_vec, dinv, u)
+        k = model.parents[i]
+        if k >= 0:
+            link[k][2] = link[k][2] + ia
+            link[k][3] = link[k][3] + pa
+    a0 = _tail(jnp.concatenate([jnp.zeros(3, dtype), -model.gravity.astype(dtype)]), nb)
+    accs, qdd = {}, [None] * n
+    for i in order:
+        k = model.parents[i]
+        accs[i], qdd[i] = _acceleration(a0 if k < 0 else accs[k], link[i][1], *swept[i], link[i][0])
+    return jnp.stack(qdd)
+
+
+def _aba_loop(model: TreeModel, q, qd, tau):
+    """The sweeps as three ``lax.scan`` over the links (parents first, then children first). Each sweep keeps one
+    stacked buffer whose rows hold a link's carried state *and* its outputs, written once per step (the last row is
+    the world, or zeros): a loop that read rows of one buffer and wrote outputs to another, or wrote two rows, would
+    make XLA copy the whole buffer every step (O(N^2) in all); one write per step is done in place."""
+    n, dtype, nb = model.n_joints, q.dtype, q.ndim - 1
+    bshape = q.shape[1:]
+    order, parent_pos = _order(model.parents)
+    r_rel, p_rel = _joint_transforms(model, q[order], order, dtype)
+    m, ms, jl = split_params(model.inertia[order])
+    eye = _tail(jnp.eye(3, dtype=dtype), nb) + jnp.zeros(bshape, dtype)
+    arm = (jnp.zeros(n, dtype) if model.rotor_inertia is None else model.rotor_inertia[order]).astype(dtype)
+    at, parent = jnp.arange(n, dtype=jnp.int32), jnp.asarray(parent_pos)
+
+    def row(buf, i):
+        return jax.lax.dynamic_index_in_dim(buf, i, 0, keepdims=False)
+
+    def put(buf, i, x):
+        return jax.lax.dynamic_update_index_in_dim(buf, x, i, 0)
+
+    def flat(*parts):
+        return jnp.concatenate([x.reshape((-1,) + bshape) for x in parts])
+
+    # Row layout of sweep 1: rot 9, pos 3, vel 6 | s 6, c 6, inertia 36, bias 6.
+    def outward(buf, g):
+        r = row(buf, g["parent"])
+        out = _outward(r[:9].reshape((3, 3) + bshape), r[9:12], r[12:18], g["r_rel"], g["p_rel"], g["axis"],
+                       _tail(g["rev"], nb), g["qd"], _tail(g["m"], nb), g["ms"], g["jl"], eye)
+        return put(buf, g["at"], flat(*out)), None
+
+    world = flat(eye, jnp.zeros((3,) + bshape, dtype), jnp.zeros((6 + 6 + 6 + 36 + 6,) + bshape, dtype))
+    buf = jnp.concatenate([jnp.zeros((n,) + world.shape, dtype), world[None]])
+    xs = dict(r_rel=r_rel, p_rel=p_rel, axis=jnp.asarray(model.axes_array[order], dtype),
+              rev=jnp.asarray(model.is_revolute[order], dtype), qd=qd[order], m=m, ms=ms, jl=jl, parent=parent, at=at)
+    buf, _ = jax.lax.scan(outward, buf, xs)
+    s, c = buf[:n, 18:24], buf[:n, 24:30]
+    inertia, bias = buf[:n, 30:66].reshape((n, 6, 6) + bshape), buf[:n, 66:72]
+
+    # Row layout of sweep 2: what the link passes to its parent (articulated inertia 36, bias 6) | U 6, 1/D, u.
+    # Each link pulls its children's rows (padded to the widest family with the zero row n): one write per step.
+    def inward(buf, g):
+        got = sum(row(buf, g["kids"][j])[:42] for j in range(kids.shape[1]))
+        u_vec, dinv, u, ia, pa = _inward(g["inertia"] + got[:36].reshape((6, 6) + bshape), g["bias"] + got[36:],
+                                         g["s"], g["c"], g["tau"], g["arm"])
+        return put(buf, g["at"], flat(ia, pa, u_vec, dinv, u)), None
+
+    kids = _children(model.parents)
+    buf = jnp.zeros((n + 1, 50) + bshape, dtype)
+    buf, _ = jax.lax.scan(inward, buf, dict(inertia=inertia, bias=bias, s=s, c=c, tau=tau[order], arm=arm, at=at,
+                                            kids=jnp.asarray(kids)), reverse=True)
+    u_vec, dinv, u = buf[:n, 42:48], buf[:n, 48], buf[:n, 49]
+
+    # Row layout of sweep 3: spatial acceleration 6, qdd 1.
+    def forward(buf, g):
+        a, qdd = _acceleration(row(buf, g["parent"])[:6], g["c"], g["U"], g["dinv"], g["u"], g["s"])
+        return put(buf, g["at"], flat(a, qdd)), None
+
+    a0 = jnp.concatenate([jnp.zeros(3, dtype), -model.gravity.astype(dtype), jnp.zeros(1, dtype)])
+    buf = jnp.broadcast_to(_tail(a0, nb), (n + 1, 7) + bshape)
+    buf, _ = jax.lax.scan(forward, buf, dict(c=c, U=u_vec, dinv=dinv, u=u, s=s, parent=parent, at=at))
+    inv = np.empty(n, dtype=np.int32)
+    inv[order] = np.arange(n, dtype=np.int32)
+    return buf[:n, 6][inv]
+
+
+def aba(model: TreeModel, q: Array, qd: Array, tau: Array) -> Array:
+    """Joint accelerations ``qdd`` (n, *B) from ``q``, ``qd`` and the generalised force ``tau`` (friction, springs
+    and limits already included; not the bias, which the sweeps add), each (n, *B) with any trailing batch axes.
+    Trees up to :data:`UNROLL_LINKS` links have their sweeps written out; larger ones loop over links."""
+    n = model.n_joints
+    bshape = jnp.broadcast_shapes(q.shape[1:], qd.shape[1:], tau.shape[1:])
+    dtype = jnp.result_type(q, qd, tau, model.inertia)
+    q, qd, tau = (jnp.broadcast_to(x, (n,) + bshape).astype(dtype) for x in (q, qd, tau))
+    # Link quantities meet the batch by trailing-axis broadcasting (a (3, 3, 1) constant against (3, 3, B)): the
+    # layout is the point of this module, so rank promotion is allowed here whatever the caller's setting.
+    with jax.numpy_rank_promotion("allow"):
+        return (_aba_unrolled if n <= UNROLL_LINKS else _aba_loop)(model, q, qd, tau)

@@ -1,0 +1,136 @@
+"""Batched forward dynamics (articulated-body sweeps, batch innermost) and the O(N) one-state path of large trees,
+against Pinocchio's ABA, our recursive Newton–Euler inverse dynamics, and per-state evaluation."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from particlesim.errors import ModelError
+from particlesim.tree import forward_dynamics, inverse_dynamics, load_urdf
+from particlesim.tree.aba import UNROLL_LINKS, supports_aba
+from tree_helpers import PinocchioOracle, max_rel, random_tree_urdf
+
+#: Against Pinocchio's ABA (double precision, a different algorithm in a different frame convention).
+PIN_RTOL = 1e-10
+#: ``inverse_dynamics(forward_dynamics(tau)) == tau`` (Newton–Euler against the articulated-body sweeps).
+ROUNDTRIP_RTOL = 1e-10
+#: Batched against one state at a time (the same equations, different summation order).
+SAME_RTOL = 1e-12
+N_STATES = 32
+
+
+def _pin_aba(oracle, q, qd, tau):
+    out = []
+    for x, v, t in zip(q, qd, tau):
+        qp, vp = oracle._qv(x, v)
+        tp = np.zeros(oracle.model.nv)
+        tp[oracle.idx] = t
+        out.append(oracle.pin.aba(oracle.model, oracle.data, qp, vp, tp)[oracle.idx])
+    return np.asarray(out)
+
+
+@pytest.fixture(scope="module", params=["tree6", "tree40", "krang"])
+def case(request, krang_urdf_dir):
+    gravity = (0.0, 0.0, -9.81)
+    if request.param == "krang":
+        urdf = str(krang_urdf_dir / "krang_fixed_wheel_2018-04.urdf")
+        gravity = (0.0, -9.81, 0.0)
+    else:
+        urdf = random_tree_urdf(21, int(request.param[4:]), prismatic=0.3)
+    model = load_urdf(urdf, gravity=gravity, limits="ignore")
+    return model, PinocchioOracle(urdf, model.joint_names, gravity)
+
+
+def test_batched_forward_dynamics_against_pinocchio(case):
+    model, oracle = case
+    assert supports_aba(model)
+    rng = np.random.default_rng(5)
+    q = rng.uniform(-2.0, 2.0, (N_STATES, model.nq))
+    qd, tau = rng.normal(size=(2, N_STATES, model.nq))
+    ours = np.asarray(jax.jit(forward_dynamics)(model, q, qd, tau))
+    err = max_rel(ours, _pin_aba(oracle, q, qd, tau))
+    print(f"{model.nq} joints ({'unrolled' if model.nq <= UNROLL_LINKS else 'loop'}): batched vs Pinocchio "
+          f"{err:.2e}")
+    assert err <= PIN_RTOL
+
+
+def test_large_tree_single_state_against_pinocchio(case):
+    """Beyond UNROLL_LINKS a single state goes through the O(N) sweeps too."""
+    model, oracle = case
+    if model.nq <= UNROLL_LINKS:
+        pytest.skip("small trees use the composite-inertia path for one state (tested in test_pinocchio.py)")
+    rng = np.random.default_rng(6)
+    q, qd, tau = rng.uniform(-2.0, 2.0, model.nq), rng.normal(size=model.nq), rng.normal(size=model.nq)
+    ours = np.asarray(jax.jit(forward_dynamics)(model, q, qd, tau))
+    assert max_rel(ours, _pin_aba(oracle, q[None], qd[None], tau[None])[0]) <= PIN_RTOL
+
+
+@pytest.fixture(scope="module")
+def loaded_tree(small_tree):
+    """Friction, rotor inertia, joint springs and soft limits: every generalised force the sweeps take in."""
+    n = small_tree.nq
+    return small_tree.with_params(stiffness=jnp.linspace(1.0, 3.0, n), spring_ref=jnp.full(n, 0.2),
+                                  limits=jnp.tile(jnp.array([-0.5, 0.5, 50.0, 2.0]), (n, 1)))
+
+
+def test_batched_forces_round_trip_through_inverse_dynamics(loaded_tree):
+    model = loaded_tree
+    rng = np.random.default_rng(7)
+    q = rng.uniform(-1.0, 1.0, (N_STATES, model.nq))
+    qd, tau = rng.normal(size=(2, N_STATES, model.nq))
+    fd = jax.jit(lambda q, qd, tau: forward_dynamics(model, q, qd, tau, smooth_friction=0.05))
+    qdd = fd(q, qd, tau)
+    back = jax.jit(jax.vmap(lambda q, qd, a: inverse_dynamics(model, q, qd, a, smooth_friction=0.05)))(q, qd, qdd)
+    assert max_rel(back, tau) <= ROUNDTRIP_RTOL
+    one = jax.jit(jax.vmap(lambda q, qd, t: forward_dynamics(model, q, qd, t, smooth_friction=0.05)))(q, qd, tau)
+    assert max_rel(qdd, one) <= SAME_RTOL
+
+
+def test_batch_axes_broadcast(small_tree):
+    n = small_tree.nq
+    rng = np.random.default_rng(8)
+    q, qd, tau = rng.normal(size=(2, 3, n)), rng.normal(size=n), rng.normal(size=(3, n))
+    out = jax.jit(forward_dynamics)(small_tree, q, qd, tau)
+    assert out.shape == (2, 3, n)
+    one = jax.jit(jax.vmap(forward_dynamics, in_axes=(None, 0, None, 0)))
+    ref = np.stack([one(small_tree, q[i], qd, tau) for i in range(2)])
+    assert max_rel(out, ref) <= SAME_RTOL
+
+
+def test_models_outside_the_sweeps_batch_state_by_state():
+    """Floating base (free joint): a batch is evaluated one state at a time, with the same results."""
+    heavy_base = ('<link name="base"><inertial><mass value="2"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.2" '
+                  'iyz="0" izz="0.15"/></inertial></link>')  # a floating base carries mass
+    urdf = random_tree_urdf(4, 3).replace('<link name="base"/>', heavy_base)
+    model = load_urdf(urdf, floating_base=True, limits="ignore")
+    assert not supports_aba(model)
+    rng = np.random.default_rng(9)
+    q = np.concatenate([rng.normal(size=(3, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (3, 1)),
+                        rng.normal(size=(3, model.nq - 7))], axis=1)
+    qd, tau = rng.normal(size=(2, 3, model.nv))
+    out = jax.jit(forward_dynamics)(model, q, qd, tau)
+    ref = jax.jit(jax.vmap(forward_dynamics, in_axes=(None, 0, 0, 0)))(model, q, qd, tau)
+    assert max_rel(out, ref) <= SAME_RTOL
+
+
+def test_batched_shapes_refused_by_name(small_tree):
+    n = small_tree.nq
+    with pytest.raises(ModelError, match=r"qd must have shape \(\.\.\., 5\)"):
+        forward_dynamics(small_tree, np.zeros((2, n)), np.zeros((2, n + 1)), np.zeros((2, n)))
+    with pytest.raises(ModelError, match="do not broadcast"):
+        forward_dynamics(small_tree, np.zeros((2, n)), np.zeros((3, n)), np.zeros((2, n)))
+
+
+def test_batched_gradients(tiny_tree):
+    model = tiny_tree
+    rng = np.random.default_rng(10)
+    q, qd, tau = (jnp.asarray(rng.normal(size=(2, model.nq))) for _ in range(3))
+
+    def f(q, qd, tau, inertia):
+        m = eqx.tree_at(lambda m: m.inertia, model, inertia)
+        return forward_dynamics(m, q, qd, tau, smooth_friction=0.1)
+
+    check_grads(jax.jit(f), (q, qd, tau, model.inertia), order=1, modes=("fwd", "rev"))
