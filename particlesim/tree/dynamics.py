@@ -19,6 +19,7 @@ from __future__ import annotations
 import functools
 from typing import NamedTuple, Optional
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_factor, cho_solve
@@ -262,6 +263,13 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     except ValueError:
         raise ModelError(f"batch axes of q {q.shape}, qd {qd.shape} and tau {tau.shape} do not broadcast") from None
     q, qd, tau = (jnp.broadcast_to(v, batch + v.shape[-1:]) for v in (q, qd, tau))
+    return _batched(model, q, qd, tau, smooth_friction)
+
+
+@eqx.filter_jit
+def _batched(model: TreeModel, q, qd, tau, smooth_friction):
+    """A batch (compiled once per model structure and batch shape: hundreds of small operations would otherwise
+    be dispatched one by one when called outside ``jit``, e.g. from a notebook)."""
     if not supports_aba(model):
         per_state = functools.partial(_forward_dynamics, model, smooth_friction=smooth_friction)
         return jnp.vectorize(per_state, signature="(a),(b),(b)->(b)")(q, qd, tau)
@@ -269,7 +277,7 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     if any(x is not None for x in (model.viscous, model.coulomb, model.stiffness, model.limits)):
         extra = functools.partial(_generalised_forces, model, smooth_friction=smooth_friction)
         rhs = jnp.vectorize(extra, signature="(a),(b),(b)->(b)")(q, qd, tau)
-    nb = len(batch)
+    nb = q.ndim - 1
     last = tuple(range(1, nb + 1)) + (0,)
     first = (nb,) + tuple(range(nb))
     out = aba(model, jnp.transpose(q, first), jnp.transpose(qd, first), jnp.transpose(rhs, first))
