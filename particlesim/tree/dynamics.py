@@ -67,6 +67,7 @@ def _check(model: TreeModel, **vectors) -> None:
 
 
 def _bodies(model: TreeModel, q) -> _Bodies:
+    model.check_quaternions_nonzero(q)  # concrete values only
     rot, pos = jax.lax.optimization_barrier(link_poses(model, q))
     m, ms, j = split_params(model.inertia)
     hl = _mv(rot, ms)  # first moment about O_j, world axes
@@ -263,6 +264,7 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     except ValueError:
         raise ModelError(f"batch axes of q {q.shape}, qd {qd.shape} and tau {tau.shape} do not broadcast") from None
     q, qd, tau = (jnp.broadcast_to(v, batch + v.shape[-1:]) for v in (q, qd, tau))
+    model.check_quaternions_nonzero(q)
     return _batched(model, q, qd, tau, smooth_friction)
 
 

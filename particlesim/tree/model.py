@@ -367,6 +367,21 @@ class TreeModel(eqx.Module):
                     raise ModelError(f"joint '{self.joint_names[i]}': its quaternion [qx, qy, qz, qw] in q has length "
                                      f"{n!r}; give a unit quaternion")
 
+    def check_quaternions_nonzero(self, q) -> None:
+        """Raise :class:`ModelError` naming the joint if a free or ball joint's quaternion in the concrete
+        configuration(s) ``q`` (``(..., nq)``) is zero or not finite: the dynamics normalise a quaternion, so any
+        other length is read as its direction, but a zero one has none (it would give NaN)."""
+        if not _concrete(q) or not self.multi_dof:
+            return
+        q = np.asarray(q, dtype=float)
+        for i, k, iq, _ in self.coordinate_blocks():
+            if k in (FREE, BALL):
+                quat = q[..., iq + 3:iq + 7] if k == FREE else q[..., iq:iq + 4]
+                n = np.linalg.norm(quat, axis=-1)
+                if not np.all(np.isfinite(n) & (n > 1e-12)):
+                    raise ModelError(f"joint '{self.joint_names[i]}': its quaternion [qx, qy, qz, qw] in q is zero "
+                                     "or not finite; give a unit quaternion ([0, 0, 0, 1] is the identity)")
+
     def configuration_rate(self, q, qd):
         """``dq/dt`` from the configuration ``q`` (nq) and velocity ``qd`` (nv): ``qd`` itself except on a free
         joint, whose position moves as ``R(quat) v`` and whose quaternion as ``1/2 quat * (w, 0)`` plus the

@@ -32,14 +32,12 @@ def _pin_aba(oracle, q, qd, tau):
     return np.asarray(out)
 
 
-@pytest.fixture(scope="module", params=["tree6", "tree40", "krang"])
-def case(request, krang_urdf_dir):
+@pytest.fixture(scope="module", params=["tree6", "tree40"])
+def case(request):
+    """A written-out tree and a looped one (Krang's batch is checked against ``abaInParallel`` on all 1024 states by
+    ``benchmarks/krang_dynamics.py``; its one-state path by test_pinocchio.py)."""
     gravity = (0.0, 0.0, -9.81)
-    if request.param == "krang":
-        urdf = str(krang_urdf_dir / "krang_fixed_wheel_2018-04.urdf")
-        gravity = (0.0, -9.81, 0.0)
-    else:
-        urdf = random_tree_urdf(21, int(request.param[4:]), prismatic=0.3)
+    urdf = random_tree_urdf(21, int(request.param[4:]), prismatic=0.3)
     model = load_urdf(urdf, gravity=gravity, limits="ignore")
     return model, PinocchioOracle(urdf, model.joint_names, gravity)
 

@@ -184,6 +184,14 @@ def test_floating_base_input_errors():
         simulate(forward_dynamics, model, np.zeros(8), np.zeros(7), 0.0, 1.0)
     with pytest.raises(ModelError, match="nq = 8, nv = 7"):
         simulate(forward_dynamics, model, np.zeros(8), np.zeros(8), 0.0, 1.0)
+    # Direct calls read a quaternion's direction (any length), but a zero one has none: named, not NaN.
+    zero = r"joint 'root_joint': its quaternion \[qx, qy, qz, qw\] in q is zero or not finite"
+    with pytest.raises(ModelError, match=zero):
+        forward_dynamics(model, np.zeros(8), np.zeros(7), np.zeros(7))
+    with pytest.raises(ModelError, match=zero):
+        mass_matrix(model, np.zeros(8))
+    with pytest.raises(ModelError, match=zero):  # a batch: one bad state is enough
+        forward_dynamics(model, np.r_[[np.r_[0, 0, 0, 0, 0, 0, 1.0, 0]], [np.zeros(8)]], np.zeros(7), np.zeros(7))
     kw = dict(axes=np.eye(3)[:2], origin_rotations=np.stack([np.eye(3)] * 2), origin_xyz=np.zeros((2, 3)),
               inertia=np.tile([1.0, 0, 0, 0, 1, 0, 0, 1, 0, 1], (2, 1)), joint_names=["a", "b"])
     with pytest.raises(ModelError, match="joint 'b': a free joint must join a root link to the world"):
