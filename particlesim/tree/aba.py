@@ -15,8 +15,8 @@ Layout: batch axes come *last* (a link's inertia is ``(6, 6, *B)``), so that eve
 over the batch; under ``jax.vmap`` of a one-state function the batch would come first and every small product would
 loop over axes of length 3 or 6. Trees up to :data:`UNROLL_LINKS` links have their sweeps written out link by link
 (the fastest program; compile time grows with the tree); larger trees run each sweep as one ``lax.scan`` over the
-links, parents first, reading and accumulating parent rows of a stacked buffer (compile time flat in N, cost per
-state O(N)).
+links with one stacked buffer (sweeps 1 and 3 read the parent's row, sweep 2 pulls the children's rows; one row
+written per step): compile time flat in N, cost per state O(N).
 
 Covers trees of revolute and prismatic joints (rotor inertia, viscous and Coulomb friction, joint springs and soft
 limits as generalised forces); models with mimic, free or ball joints use the composite-inertia path.

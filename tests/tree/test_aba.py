@@ -132,3 +132,19 @@ def test_batched_gradients(tiny_tree):
         return forward_dynamics(m, q, qd, tau, smooth_friction=0.1)
 
     check_grads(jax.jit(f), (q, qd, tau, model.inertia), order=1, modes=("fwd", "rev"))
+
+
+def test_a_batch_compiles_once_per_structure(small_tree):
+    """New parameter values and new states of the same shape reuse the compiled batch (trace counter)."""
+    from particlesim import _ode
+
+    rng = np.random.default_rng(11)
+    q, qd, tau = (rng.normal(size=(4, small_tree.nq)) for _ in range(3))
+    forward_dynamics(small_tree, q, qd, tau)
+    before = _ode.TRACES["forward_dynamics batch"]
+    heavier = small_tree.with_params(inertia=small_tree.inertia * 1.3, viscous=small_tree.viscous * 2.0)
+    out = forward_dynamics(heavier, q + 0.1, qd, tau)
+    forward_dynamics(small_tree, q - 0.2, qd * 3.0, tau)
+    assert _ode.TRACES["forward_dynamics batch"] == before
+    ref = jax.vmap(lambda a, b, c: forward_dynamics(heavier, a, b, c))(q + 0.1, qd, tau)
+    assert max_rel(out, ref) <= SAME_RTOL
