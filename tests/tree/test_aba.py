@@ -148,3 +148,19 @@ def test_a_batch_compiles_once_per_structure(small_tree):
     assert _ode.TRACES["forward_dynamics batch"] == before
     ref = jax.vmap(lambda a, b, c: forward_dynamics(heavier, a, b, c))(q + 0.1, qd, tau)
     assert max_rel(out, ref) <= SAME_RTOL
+
+
+def test_loop_sweeps_equal_written_out_sweeps_and_differentiate(small_tree, tiny_tree):
+    """The scan-over-links sweeps (trees beyond UNROLL_LINKS) on small trees, against the written-out sweeps (values,
+    with prismatic joints, rotor inertia and a branch) and against finite differences (gradients, fwd and rev)."""
+    from particlesim.tree import aba as aba_module
+
+    rng = np.random.default_rng(12)
+    n = small_tree.nq
+    q, qd, tau = (jnp.asarray(rng.normal(size=(n, 3))) for _ in range(3))
+    loop = jax.jit(lambda m, q, qd, t: aba_module._aba_loop(m, q, qd, t))
+    written = jax.jit(lambda m, q, qd, t: aba_module._aba_unrolled(m, q, qd, t))
+    with jax.numpy_rank_promotion("allow"):
+        assert max_rel(loop(small_tree, q, qd, tau), written(small_tree, q, qd, tau)) <= SAME_RTOL
+        x = (jnp.asarray(rng.normal(size=(tiny_tree.nq, 2))) for _ in range(3))
+        check_grads(lambda *a: loop(tiny_tree, *a), tuple(x), order=1, modes=("fwd", "rev"))
