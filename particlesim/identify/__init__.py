@@ -1,4 +1,4 @@
-"""Parameter identification of tree robots: consistent parameterisations, regressors, fits, rollouts."""
+"""Parameter identification of tree robots: consistent parameterisations, regressors, fits, uncertainty, rollouts."""
 
 from ._data import (
     KRANG_ARM_GEAR,
@@ -20,6 +20,7 @@ from ._fit import (
     theta_from_params,
     torque_residuals,
 )
+from ._uncertainty import BaseUncertainty, base_uncertainty, bootstrap_base
 from ._rollout import Windows, fit_rollout, make_windows, rollout_residuals
 from ._params import (
     inertia_from_log_cholesky,

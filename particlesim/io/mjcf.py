@@ -23,7 +23,7 @@ import numpy as np
 
 from .urdf import read_urdf
 
-__all__ = ["urdf_for_mujoco", "mujoco_model", "mjx_model", "JointMap"]
+__all__ = ["urdf_for_mujoco", "mujoco_spec", "mujoco_model", "mjx_model", "JointMap"]
 
 _INTEGRATORS = {
     "euler": mujoco.mjtIntegrator.mjINT_EULER,
@@ -61,7 +61,13 @@ def _per_joint(value: float | Mapping[str, float] | None, name: str) -> float:
     return float(value)
 
 
-def mujoco_model(
+def mujoco_model(urdf: str | Path, **kwargs) -> mujoco.MjModel:
+    """Compile a URDF into a ``mujoco.MjModel`` that is the same rigid tree as ``particlesim.tree.load_urdf``;
+    ``mujoco_spec(urdf, **kwargs).compile()`` (see :func:`mujoco_spec` for the arguments)."""
+    return mujoco_spec(urdf, **kwargs).compile()
+
+
+def mujoco_spec(
     urdf: str | Path,
     *,
     gravity: Sequence[float] = (0.0, -9.81, 0.0),
@@ -69,8 +75,8 @@ def mujoco_model(
     integrator: str = "rk4",
     damping: float | Mapping[str, float] | None = None,
     armature: float | Mapping[str, float] | None = None,
-) -> mujoco.MjModel:
-    """Compile a URDF into a ``mujoco.MjModel`` that is the same rigid tree as ``particlesim.tree.load_urdf``.
+) -> mujoco.MjSpec:
+    """The ``mujoco.MjSpec`` of a URDF's MuJoCo twin (edit it, e.g. with ``mujoco.sysid`` modifiers, then compile).
 
     Args:
         urdf: path or URDF text.
@@ -102,7 +108,7 @@ def mujoco_model(
     spec.option.timestep = float(timestep)
     spec.option.integrator = integ
     spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
-    return spec.compile()
+    return spec
 
 
 def mjx_model(m: mujoco.MjModel):

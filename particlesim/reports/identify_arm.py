@@ -33,7 +33,7 @@ from ..identify import (
     pseudo_inertia, regressor, rigid_regressor, theta_from_params,
 )
 
-__all__ = ["identify_arm", "QUOTED_LAB", "EPS_GRID"]
+__all__ = ["identify_arm", "select_friction_model", "QUOTED_LAB", "EPS_GRID"]
 
 #: Pooled test RMSE (N m) quoted from ``shared/data/README.md`` (lab's own identification; not recomputed).
 QUOTED_LAB = {"lab arm_betaFull (quoted)": 10.2, "lab arm_betaConsistent (quoted)": 11.4}
@@ -44,6 +44,22 @@ HOLDOUT = 0.25
 def _rmse(pred, tau):
     r = np.asarray(pred) - np.asarray(tau)
     return np.sqrt(np.mean(r ** 2, axis=0)), float(np.sqrt(np.mean(r ** 2)))
+
+
+def select_friction_model(w_tr: dict, torque, saturated) -> tuple:
+    """Choose the Coulomb smoothing ``eps`` (keys of ``w_tr``, regressors of the training run) and whether
+    current-saturated samples are left out, by the unconstrained fit's RMSE on a hold-out (the last
+    ``HOLDOUT`` of the training run). Returns ``(eps, drop_saturated, [(holdout_rmse, eps, drop), ...])``."""
+    cut = int(len(torque) * (1 - HOLDOUT))
+    fit_rows, val_rows = slice(0, cut), slice(cut, None)
+    choices = []
+    for e, w in w_tr.items():
+        for drop in (False, True):
+            mask = np.broadcast_to(~saturated[fit_rows] if drop else True, torque[fit_rows].shape)
+            x = ordinary_least_squares(w[fit_rows], torque[fit_rows], mask)
+            choices.append((_rmse(w[val_rows] @ x, torque[val_rows])[1], e, drop))
+    _, eps, drop = min(choices)
+    return eps, drop, choices
 
 
 def identify_arm(out="out", *, step: int = 1, starts: int = 3, max_steps: int = 2000, rollout: bool = False,
@@ -76,16 +92,7 @@ def identify_arm(out="out", *, step: int = 1, starts: int = 3, max_steps: int = 
     x_lab = ordinary_least_squares(w_tr[1.0], train.torque)
     rows["OLS, lab model (tanh qd, all samples)"] = _rmse(w_te[1.0] @ x_lab, test.torque)
 
-    # Model selection on a hold-out (the end of the training run), unconstrained fit.
-    cut = int(len(train) * (1 - HOLDOUT))
-    fit_rows, val_rows = slice(0, cut), slice(cut, None)
-    choices = []
-    for e in EPS_GRID:
-        for drop in (False, True):
-            mask = np.broadcast_to(~sat_train[fit_rows] if drop else True, train.torque[fit_rows].shape)
-            x = ordinary_least_squares(w_tr[e][fit_rows], train.torque[fit_rows], mask)
-            choices.append((_rmse(w_tr[e][val_rows] @ x, train.torque[val_rows])[1], e, drop))
-    val, eps, drop = min(choices)
+    eps, drop, choices = select_friction_model(w_tr, train.torque, sat_train)
     say("hold-out RMSE (eps, drop saturated): " + ", ".join(f"({e:g}, {d}) {v:.2f}" for v, e, d in choices))
     say(f"chosen eps = {eps:g} rad/s, drop saturated samples = {drop}")
     mask = ~sat_train if drop else None

@@ -10,7 +10,7 @@ from scipy.stats import chi2
 
 from particlesim.identify import (
     compress, fit_base_consistent, fit_consistent, identifiable_basis, model_with_params, params_from_theta, pseudo_inertia, regressor,
-    theta_from_params, torque_residuals,
+    base_uncertainty, bootstrap_base, theta_from_params, torque_residuals,
 )
 from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics, gravity_torques, inverse_dynamics
@@ -156,3 +156,60 @@ def test_real_arm_fit_is_consistent_and_beats_ols(arm_model, arm_train, arm_test
     pred = np.asarray(regressor(arm_model, t.q, t.qd, t.qdd, eps=eps)) @ fit.best_pi
     pooled = float(np.sqrt(np.mean((pred - t.torque) ** 2)))
     assert pooled < OLS_BASELINE, pooled
+
+
+UNCERTAINTY_LEVELS = (0.01, 0.05)  # torque noise, fraction of the pooled RMS torque
+COVERAGE = 0.90  # fraction of base parameters whose error must lie inside 2 standard errors
+WELL_IDENTIFIED = 0.1  # relative standard error below which a base parameter counts as well identified
+BOOTSTRAP_FACTOR = 2.0  # bootstrap spread and Gauss-Newton standard error agree within this factor
+
+
+@pytest.fixture(scope="module")
+def noisy_fits(true_params, simulated, sim_regressor):
+    """Consistent fits to the simulated torques with independent Gaussian noise at each level."""
+    tau = simulated[3]
+    rms = float(np.sqrt(np.mean(tau ** 2)))
+    out = {}
+    for k, level in enumerate(UNCERTAINTY_LEVELS):
+        sigma = level * rms
+        noisy = tau + sigma * np.random.default_rng(100 + k).standard_normal(tau.shape)
+        lsq = compress(sim_regressor, noisy)
+        fit = fit_consistent(lsq, _start(true_params, 0)[None], max_steps=1500, verbose=False)
+        out[level] = (sigma, noisy, lsq, fit)
+    return out
+
+
+def test_standard_errors_cover_the_truth(true_params, sim_regressor, noisy_fits):
+    """Gauss-Newton standard errors of the base parameters: at 1 % and 5 % noise at least COVERAGE of the base
+    parameters lie within 2 standard errors of the truth, and the noise estimate is within 10 % of the true one."""
+    basis, _ = identifiable_basis(sim_regressor, rtol=IDENTIFIABLE_RTOL)
+    for level, (sigma, _, lsq, fit) in noisy_fits.items():
+        u = base_uncertainty(lsq, fit.best_theta, basis=basis)
+        z = (u.beta - basis.T @ true_params) / u.std
+        inside = float(np.mean(np.abs(z) < 2))
+        print(f"  noise {level:.0%}: sigma {u.sigma:.3f} (true {sigma:.3f}), {inside:.0%} of {z.size} base "
+              f"parameters within 2 standard errors, max |z| {np.abs(z).max():.2f}")
+        assert inside >= COVERAGE, (level, inside)
+        assert abs(u.sigma / sigma - 1) < 0.1, (u.sigma, sigma)
+
+
+def test_bootstrap_spread_agrees_with_gauss_newton(sim_regressor, noisy_fits):
+    """Spread of least-squares fits to 32 resamples of the samples vs the Gauss-Newton standard errors at the
+    consistent fit (5 % noise; interior, so the two describe the same estimator),
+    for the well-identified base parameters."""
+    basis, _ = identifiable_basis(sim_regressor, rtol=IDENTIFIABLE_RTOL)
+    sigma, noisy, lsq, fit = noisy_fits[0.05]
+    u = base_uncertainty(lsq, fit.best_theta, basis=basis)
+    boot = bootstrap_base(sim_regressor, noisy, fit.best_theta, basis, count=32, seed=3)
+    good = u.rel_std < WELL_IDENTIFIED
+    ratio = boot.std(axis=0)[good] / u.std[good]
+    print(f"  {good.sum()} well-identified base parameters: bootstrap / Gauss-Newton spread "
+          f"{ratio.min():.2f} .. {ratio.max():.2f} (median {np.median(ratio):.2f})")
+    assert good.sum() >= 10
+    assert np.all(ratio < BOOTSTRAP_FACTOR) and np.all(ratio > 1 / BOOTSTRAP_FACTOR), ratio
+
+
+def test_base_uncertainty_refuses_too_few_residuals(true_params, sim_regressor, simulated):
+    few = compress(sim_regressor[:2], simulated[3][:2])  # 14 residuals: as many base parameters as residuals
+    with pytest.raises(ValueError, match="do not exceed"):
+        base_uncertainty(few, theta_from_params(true_params), rtol=1e-12)
