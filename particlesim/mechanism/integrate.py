@@ -111,6 +111,18 @@ def parameter_groups(mech: Mechanism) -> list:
     return [(lab, arr) for lab, arr in groups if arr.size]
 
 
+def _initial_contact(deflection, x0, xd0, xdd_free):
+    """Each tyre's law at the start (1.0 in contact): compressed (deflection < 0), or at exactly zero deflection
+    heading into the ground: deflection rate < 0, or at rest with the free (no-contact) acceleration pressing in.
+
+    A tyre that starts exactly touching (the usual assembly) must start in the law it is entering: its switching
+    function starts at zero, where no sign change is ever seen, so starting it "off" let it sink unopposed."""
+    d, rate = jax.jvp(deflection, (x0,), (xd0,))
+    _, push = jax.jvp(deflection, (x0,), (xdd_free,))  # second derivative when at rest (rate = 0)
+    entering = jnp.where(rate != 0.0, rate < 0.0, push < 0.0)
+    return jnp.where(d != 0.0, d < 0.0, entering).astype(x0.dtype)
+
+
 @_ode.cached("simulate_mechanism")
 def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabilise, baumgarte, solve,
               max_events=0, warn_switch=False):
@@ -160,7 +172,9 @@ def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
             d = deflections(y[0], m, p)
             return jnp.where(modes > 0.5, -d, d)  # positive in the current law, crossing zero downwards
 
-        modes0 = (deflections(x0, mech, prep) < 0.0).astype(x0.dtype)
+        modes0 = _initial_contact(lambda x: deflections(x, mech, prep), x0, xd0,
+                                  _solve(mech, prep, t0, x0, xd0, baumgarte,
+                                         contact=jnp.zeros(len(mech.topo.tyre_names), bool))[0])
         ts_, (xs, xds), steps, rejected, result, ok, events = _ode.integrate_events(
             field_modes, (x0, xd0), args0, modes0, surfaces, len(mech.topo.tyre_names), max_events, t0=t0, t1=t1,
             rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg, projection=projection if stabilise else None)

@@ -53,31 +53,34 @@ def model():
     return mech, x0, outputs
 
 
-def _reference_events():
+def _reference_events(yc0=YC0, yw0=YW0, contact=False):
+    """SciPy DOP853 with its own event location from rest at heights ``(yc0, yw0)`` starting in the tyre law
+    ``contact``; returns ``[(t, contact after), ...]`` and the final ``(yc, yw)``."""
     def rhs(t, y, contact):
         yc, yw, vc, vw = y
         fs = K * (L0 - (yc - yw)) - C * (vc - vw)
         ft = -(KT * (yw - R) + CT * vw) if contact else 0.0
         return [vc, vw, fs / MC - G, (-fs + ft) / MW - G]
 
-    t, y, contact, out = 0.0, np.array([YC0, YW0, 0.0, 0.0]), False, []
+    t, y, out = 0.0, np.array([yc0, yw0, 0.0, 0.0]), []
     while t < T_END:
         def hit(t, y, c):
             return y[1] - R
         hit.terminal, hit.direction = True, (1 if contact else -1)
         s = solve_ivp(rhs, (t, T_END), y, args=(contact,), events=hit, rtol=1e-13, atol=1e-15, method="DOP853")
         if not s.t_events[0].size:
+            y = s.y[:, -1]
             break
         t, y, contact = s.t_events[0][0], s.y_events[0][0], not contact
         out.append((t, contact))
-    return out
+    return out, y[:2]
 
 
 def test_switches_are_located_at_the_reference_event_times(model):
     mech, x0, _ = model
     sol = simulate_mechanism(mech, jnp.asarray(x0), jnp.zeros(mech.n_coords), 0.0, T_END, solver="dopri8",
                              rtol=1e-12, atol=1e-14, saveat_ts=TS, events=True)
-    ref = _reference_events()
+    ref, _ = _reference_events()
     assert [c for _, c in ref] == [True, False, True]  # touch down, lift off, touch down
     n = len(ref)
     ev = sol.events
@@ -85,6 +88,25 @@ def test_switches_are_located_at_the_reference_event_times(model):
     assert np.max(np.abs(np.asarray(ev.ts[:n]) - [t for t, _ in ref])) < EVENT_TOL
     assert list(np.asarray(ev.active[:n])) == [c for _, c in ref]
     assert list(np.asarray(ev.element[:n])) == [0] * n  # mech.topo.tyre_names[0]
+
+
+def test_a_tyre_starting_exactly_touching_at_rest_enters_contact(model):
+    """Regression: released with the tyre exactly touching (zero deflection, the usual assembly), the evented
+    rollout started the tyre out of contact and the wheel sank through the ground (the switching function starts
+    at zero, so no sign change is ever seen). Now the initial law follows where the tyre is heading; the run matches
+    SciPy started in contact (heights to EVENT_TOL, the same later switches)."""
+    mech, x0, _ = model
+    names = [mech.topo.particle_names[i] for i in mech.topo.free]
+    shift = np.zeros(mech.n_coords)
+    shift[1::3] = R - YW0  # every particle down by the same amount: constraints hold, wheel centre at y = R
+    sol = simulate_mechanism(mech, jnp.asarray(x0 + shift), jnp.zeros(mech.n_coords), 0.0, T_END,
+                             solver="dopri8", rtol=1e-12, atol=1e-14, saveat_ts=TS, events=True)
+    ref, (yc, yw) = _reference_events(YC0 + R - YW0, R, contact=True)
+    n = len(ref)
+    assert np.all(np.isinf(np.asarray(sol.events.ts[n:])))
+    assert list(np.asarray(sol.events.active[:n])) == [c for _, c in ref]
+    q = np.asarray(sol.q[-1])
+    assert abs(q[3 * names.index("W") + 1] - yw) < EVENT_TOL and abs(q[3 * names.index("C") + 1] - yc) < EVENT_TOL
 
 
 def test_derivatives_across_switches_match_converged_central_differences(model):
