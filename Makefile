@@ -5,6 +5,7 @@ PY     := $(VENV)/bin/python
 # pytest-xdist workers: XLA compiles are single-threaded, so one per core
 JOBS   ?= 2
 STAMP  := $(VENV)/.installed-stamp
+BENCH_STAMP := $(VENV)/.bench-stamp
 
 .PHONY: run test bench clean
 
@@ -22,8 +23,12 @@ run: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(JOBS) --dist loadscope $(PYTEST_ARGS)
 
+$(BENCH_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e ".[test,bench]"
+	touch $(BENCH_STAMP)
+
 ## bench: rerun the benchmarks and rewrite their results
-bench: $(STAMP)
+bench: $(BENCH_STAMP)
 	$(PY) -m benchmarks.run_all
 
 clean:
