@@ -179,6 +179,16 @@ def noisy_fits(true_params, simulated, sim_regressor):
     return out
 
 
+def test_fit_consistent_compiles_once_for_new_data(noisy_fits, true_params):
+    """Both noise levels were fitted by one compiled solver; another data set and start do not retrace it."""
+    from particlesim import _ode
+
+    before = _ode.TRACES["fit_consistent"]
+    _, _, lsq, _ = noisy_fits[0.01]
+    fit_consistent(lsq, _start(true_params, 5)[None], max_steps=1500, verbose=False)
+    assert _ode.TRACES["fit_consistent"] == before
+
+
 def test_standard_errors_cover_the_truth(true_params, sim_regressor, noisy_fits):
     """Gauss-Newton standard errors of the base parameters: at 1 % and 5 % noise at least COVERAGE of the base
     parameters lie within 2 standard errors of the truth, and the noise estimate is within 10 % of the true one."""
