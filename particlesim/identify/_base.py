@@ -29,7 +29,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import ArrayLike, Float
 
-from ._fit import CompressedLSQ, params_from_theta
+from ._fit import CompressedLSQ, check_start, params_from_theta
 from ._regressor import column_scale, identifiable_basis
 
 __all__ = ["BaseParameters", "base_parameters", "BaseFit", "fit_base_consistent"]
@@ -76,6 +76,7 @@ def fit_base_consistent(lsq: CompressedLSQ, theta0: Float[ArrayLike, "S p"], *, 
 
     ``rtol``: singular-value cut of the base parameters; ``tol``: LM's relative and absolute tolerances.
     """
+    check_start(theta0)
     base = base_parameters(lsq, rtol=rtol)
     e_mat, b = jnp.asarray(base.basis.T), jnp.asarray(base.beta_hat)
 

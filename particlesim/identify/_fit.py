@@ -98,6 +98,25 @@ class FitResult(NamedTuple):
         return self.theta[self.best]
 
 
+def _entry(i: int, n: int) -> str:
+    kinds = ("rotor inertia", "viscous friction", "Coulomb friction")
+    return f"link {i // 10} inertia entry {i % 10}" if i < 10 * n else f"joint {(i - 10 * n) % n} {kinds[(i - 10 * n) // n]}"
+
+
+def check_start(theta0) -> None:
+    """Refuse starts with non-finite coordinates, naming the entry (``theta_from_params`` gives NaN where a body is
+    not strictly consistent or a rotor inertia / friction coefficient is not positive, e.g. the zeros of
+    ``params_of_model`` for a model without them)."""
+    theta0 = np.atleast_2d(np.asarray(theta0, dtype=float))
+    bad = np.argwhere(~np.isfinite(theta0))
+    if bad.size:
+        n = theta0.shape[-1] // 13
+        where = ", ".join(f"start {s}: {_entry(int(i), n)}" for s, i in bad[:4]) + (" ..." if len(bad) > 4 else "")
+        raise ValueError(f"non-finite start coordinates ({where}): every body must be strictly physically "
+                         "consistent and every rotor inertia and friction coefficient positive in the start "
+                         "(theta_from_params of a zero gives -inf; start actuator parameters at e.g. 1.0)")
+
+
 @functools.partial(jax.jit, static_argnames=("rtol", "atol", "max_steps", "has_prior"))
 def _lm_starts(theta0, r, y, ref, weight, *, rtol, atol, max_steps, has_prior):
     """Levenberg–Marquardt from every row of ``theta0``, vmapped; compiled once per shapes and settings (new data
@@ -129,6 +148,7 @@ def fit_consistent(lsq: CompressedLSQ, theta0: Float[ArrayLike, "S 13n"], *, rto
     per problem size, number of starts and settings: new data, starts and prior values reuse it.
     """
     theta0 = jnp.atleast_2d(jnp.asarray(theta0, dtype=float))
+    check_start(theta0)
     ref, weight = (jnp.zeros(theta0.shape[-1]), 0.0) if prior is None else (jnp.asarray(prior[0], float), prior[1])
     theta, steps = _lm_starts(theta0, lsq.r, lsq.y, ref, jnp.asarray(weight, float), rtol=float(rtol),
                               atol=float(atol), max_steps=int(max_steps), has_prior=prior is not None)

@@ -189,6 +189,18 @@ def test_fit_consistent_compiles_once_for_new_data(noisy_fits, true_params):
     assert _ode.TRACES["fit_consistent"] == before
 
 
+def test_a_start_with_zero_friction_is_refused_by_name(arm_model, noisy_fits):
+    """``params_of_model`` of a model without rotor inertia or friction has zeros there; their unconstrained
+    coordinates are -inf. The fit says so instead of returning NaN."""
+    from particlesim.identify import params_of_model
+
+    _, _, lsq, _ = noisy_fits[0.01]
+    with pytest.raises(ValueError, match="start 0: joint 0 rotor inertia"):
+        fit_consistent(lsq, theta_from_params(params_of_model(arm_model))[None], verbose=False)
+    with pytest.raises(ValueError, match="joint 0 rotor inertia"):
+        fit_base_consistent(lsq, theta_from_params(params_of_model(arm_model))[None])
+
+
 def test_standard_errors_cover_the_truth(true_params, sim_regressor, noisy_fits):
     """Gauss-Newton standard errors of the base parameters: at 1 % and 5 % noise at least COVERAGE of the base
     parameters lie within 2 standard errors of the truth, and the noise estimate is within 10 % of the true one."""
