@@ -174,7 +174,7 @@ def noisy_fits(true_params, simulated, sim_regressor):
         sigma = level * rms
         noisy = tau + sigma * np.random.default_rng(100 + k).standard_normal(tau.shape)
         lsq = compress(sim_regressor, noisy)
-        fit = fit_consistent(lsq, _start(true_params, 0)[None], max_steps=1500, verbose=False)
+        fit = fit_consistent(lsq, _start(true_params, 0)[None], max_steps=2000, verbose=False)  # shares a compile
         out[level] = (sigma, noisy, lsq, fit)
     return out
 
@@ -185,7 +185,7 @@ def test_fit_consistent_compiles_once_for_new_data(noisy_fits, true_params):
 
     before = _ode.TRACES["fit_consistent"]
     _, _, lsq, _ = noisy_fits[0.01]
-    fit_consistent(lsq, _start(true_params, 5)[None], max_steps=1500, verbose=False)
+    fit_consistent(lsq, _start(true_params, 5)[None], max_steps=2000, verbose=False)
     assert _ode.TRACES["fit_consistent"] == before
 
 
