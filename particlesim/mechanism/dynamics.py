@@ -30,7 +30,7 @@ import jax.scipy.linalg  # noqa: F401
 from jaxtyping import Array, Float
 
 from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, gamma, jacobian, prepare, residual,
-                       rows, schur, solve_schur, velocity_target)
+                       rows, schur, solve_schur, spd_solve, velocity_target)
 from ._algebra import LSQ_REFINE, LSQ_RTOL
 from ._algebra import scalar_mass_matrix  # noqa: F401  (re-exported for Mechanism.scalar_mass_matrix)
 from .forces import generalized_point_forces, point_forces, potential_energy, torque_forces
@@ -73,7 +73,10 @@ def _solve(mech: Mechanism, prep: Prepared, t, x, xd, baumgarte: float, contact=
         minv_q = minv_q + prep.minv @ q_torque.reshape(-1, 3)
     if g.shape[0] == 0:
         return minv_q.reshape(-1), g
-    lam = solve_schur(factor_schur(schur(prep, r), mech.topo.least_squares), apply_j(prep, r, minv_q) - g)
+    if mech.topo.least_squares:
+        lam = solve_schur(factor_schur(schur(prep, r), True), apply_j(prep, r, minv_q) - g)
+    else:
+        lam = spd_solve(schur(prep, r), apply_j(prep, r, minv_q) - g)
     return (minv_q - apply_minv_jt(prep, r, lam)).reshape(-1), lam
 
 

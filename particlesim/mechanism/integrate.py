@@ -33,7 +33,7 @@ from .._ode import ADJOINTS, Solution
 from ..errors import ModelError
 from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_project
 from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian, prepare, residual, rows,
-                       schur, solve_schur, velocity_target)
+                       schur, solve_schur, spd_solve, velocity_target)
 from .dynamics import _solve
 from .forces import tyre_deflections
 from .model import Mechanism
@@ -68,14 +68,21 @@ def project_prepared(mech: Mechanism, prep: Prepared, x, xd, t=0.0):
         return _project_euclid(mech, prep, x, xd, drive)
     r0 = r = rows(prep, x, drive=drive)
     # One factorisation at the stepped state serves every pass below (least squares: minimum-norm corrections).
-    factor = factor_schur(schur(prep, r0), mech.topo.least_squares)
+    # Without least squares each pass is an ``spd_solve`` of the same S: XLA computes its factorisation once, and
+    # derivatives take the solve's cheap tangent instead of going through the factorisation.
+    s0 = schur(prep, r0)
+    if mech.topo.least_squares:
+        factor = factor_schur(s0, True)
+        solve = lambda rhs: solve_schur(factor, rhs)  # noqa: E731
+    else:
+        solve = lambda rhs: spd_solve(s0, rhs)  # noqa: E731
     for _ in range(_POSITION_ITERATIONS):
-        lam = solve_schur(factor, residual(prep, mech.dot_kappa, r, x))
+        lam = solve(residual(prep, mech.dot_kappa, r, x))
         x = x - apply_minv_jt(prep, r0, lam).reshape(-1)
         r = rows(prep, x, drive=drive)
     nu = velocity_target(prep, r)
     for _ in range(_VELOCITY_PASSES):
-        lam = solve_schur(factor, apply_j(prep, r, xd.reshape(-1, 3)) - nu)
+        lam = solve(apply_j(prep, r, xd.reshape(-1, 3)) - nu)
         xd = xd - apply_minv_jt(prep, r0, lam).reshape(-1)
     return x, xd
 

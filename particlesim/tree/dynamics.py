@@ -22,13 +22,13 @@ from typing import NamedTuple, Optional
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, ArrayLike, Float
 
 from .aba import UNROLL_LINKS, aba, supports_aba
 from .energy import split_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
+from .._linalg import spd_solve
 from ..errors import ModelError
 from .model import TreeModel
 
@@ -233,7 +233,7 @@ def _forward_dynamics(model: TreeModel, q, qd, tau, smooth_friction):
     if supports_aba(model) and model.n_joints > UNROLL_LINKS:
         return aba(model, q[:, None], qd[:, None], rhs[:, None])[:, 0]
     b = _bodies(model, q)
-    return cho_solve(cho_factor(_mass_matrix(model, b)), rhs - _rnea(model, b, qd, None, model.gravity))
+    return spd_solve(_mass_matrix(model, b), rhs - _rnea(model, b, qd, None, model.gravity))
 
 
 def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[ArrayLike, "... nv"],
