@@ -1,5 +1,5 @@
-"""Identification round trips on simulated Krang-arm trajectories, gradients of the losses, consistency on the
-real arm."""
+"""Identification round trips on simulated Krang-arm trajectories, gradients of the losses, standard errors and
+bootstrap (the real-arm fit is checked by tests/identify/test_report.py)."""
 
 import jax
 import jax.numpy as jnp
@@ -14,7 +14,6 @@ from particlesim.identify import (
 )
 from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics, gravity_torques, inverse_dynamics
-from particlesim.tree.model import origin_params_check
 
 EPS = 0.05  # rad/s, Coulomb smoothing used throughout the simulated case
 NOISE_FREE_RTOL = 1e-6  # identifiable combinations and predicted torques, noise-free data
@@ -24,7 +23,6 @@ REGRESSOR_RTOL = 1e-10
 GRAD_TOL = 1e-5
 IDENTIFIABLE_RTOL = 1e-6  # singular-value cut (column-scaled regressor) defining identifiable combinations
 PSD_RTOL = 1e-12  # rounding allowance on pseudo-inertia eigenvalues (relative to the largest of the body)
-OLS_BASELINE = 9.9  # N m, pooled test RMSE of the unconstrained lab model (data README)
 
 
 @pytest.fixture(scope="session")
@@ -137,25 +135,6 @@ def test_check_grads_identification_loss(arm_model, arm_train, true_params):
     lsq = compress(w, d.torque)
     fast = lambda t: 0.5 * (jnp.sum((lsq.r @ params_from_theta(t) - lsq.y) ** 2) + lsq.rest) / lsq.count  # noqa
     np.testing.assert_allclose(jax.grad(fast)(th), jax.grad(loss)(th), rtol=1e-7, atol=1e-9)
-
-
-def test_real_arm_fit_is_consistent_and_beats_ols(arm_model, arm_train, arm_test):
-    """Fit on every 3rd training sample (for speed), score on the whole test run."""
-    d = arm_train.subsample(3)
-    eps = 0.01
-    w = np.asarray(regressor(arm_model, d.q, d.qd, d.qdd, eps=eps))
-    pi0 = np.concatenate([np.asarray(arm_model.inertia).ravel(), np.ones(21)])
-    fit = fit_consistent(compress(w, d.torque), np.asarray(theta_from_params(pi0))[None], max_steps=2000,
-                         verbose=False)
-    inertia = fit.best_pi[:70].reshape(7, 10)
-    assert np.all(np.linalg.eigvalsh(np.asarray(pseudo_inertia(inertia))) > 0)
-    for i in range(7):
-        origin_params_check(inertia[i], f"identified link {arm_model.link_names[i]}")
-    assert np.all(fit.best_pi[70:] > 0)  # rotor inertia, viscous and Coulomb friction
-    t = arm_test
-    pred = np.asarray(regressor(arm_model, t.q, t.qd, t.qdd, eps=eps)) @ fit.best_pi
-    pooled = float(np.sqrt(np.mean((pred - t.torque) ** 2)))
-    assert pooled < OLS_BASELINE, pooled
 
 
 UNCERTAINTY_LEVELS = (0.01, 0.05)  # torque noise, fraction of the pooled RMS torque
