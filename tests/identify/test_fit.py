@@ -1,5 +1,6 @@
 """Identification round trips on simulated Krang-arm trajectories, gradients of the losses, standard errors and
-bootstrap (the real-arm fit is checked by tests/identify/test_report.py)."""
+bootstrap (the real-arm report, its consistency and its test RMSE are checked by notebooks/identify_arm.ipynb,
+executed by tests/test_notebooks.py)."""
 
 import jax
 import jax.numpy as jnp
