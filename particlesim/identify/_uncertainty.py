@@ -29,7 +29,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import ArrayLike, Float
 
-from ._fit import CompressedLSQ, compress, params_from_theta
+from ._fit import CompressedLSQ, check_start, compress, params_from_theta
 from ._regressor import column_scale, identifiable_basis
 
 __all__ = ["BaseUncertainty", "base_uncertainty", "bootstrap_base"]
@@ -62,8 +62,11 @@ def base_uncertainty(lsq: CompressedLSQ, theta: Float[ArrayLike, " p"], *, basis
     noise standard deviation if known (default: estimated from the residual); ``pinv_rtol``: singular values of
     ``J^T J`` below this times the largest are treated as unidentifiable (pseudo-inverse).
     """
+    check_start(theta)
     theta = jnp.asarray(theta, dtype=float)
     r_mat = np.asarray(lsq.r)
+    if theta.shape != (r_mat.shape[1],):
+        raise ValueError(f"theta has shape {theta.shape}; the regressor has {r_mat.shape[1]} parameters")
     if basis is None:
         basis, _ = identifiable_basis(r_mat, rtol=rtol)
     rank = basis.shape[1]
@@ -103,6 +106,8 @@ def bootstrap_base(w: Float[ArrayLike, "N n p"], tau: Float[ArrayLike, "N n"], t
     pi_ls`` from ``theta0``, all resamples vmapped; ``max_steps``, ``tol``), for fits where a consistency bound
     is active."""
     w, tau = np.asarray(w), np.asarray(tau)
+    if not 1 <= block <= tau.shape[0]:
+        raise ValueError(f"block must be between 1 and the number of samples ({tau.shape[0]}), got {block}")
     mask = np.ones(tau.shape, bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), tau.shape)
     rng = np.random.default_rng(seed)
     targets = []

@@ -28,13 +28,12 @@ import numpy as np
 from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, Float
 
-from .._linalg import spd_solve
 from ..particles import primary_mass_matrix
 from .constraints import linear_blocks, point_free_weights, point_weights, points, quarter_turn
 from .model import Mechanism
 
 __all__ = ["Prepared", "prepare", "scalar_mass_matrix", "Rows", "rows", "schur", "apply_j", "apply_minv_jt",
-           "residual", "gamma", "velocity_target", "Drive", "drive_at", "SchurFactor", "factor_schur", "solve_schur", "spd_solve",
+           "residual", "gamma", "velocity_target", "Drive", "drive_at", "SchurFactor", "factor_schur", "solve_schur",
            "LSQ_RTOL", "LSQ_REFINE"]
 
 #: Least-squares multipliers: ``S`` is factorised as ``S + mu I`` with ``mu`` this fraction of its largest diagonal

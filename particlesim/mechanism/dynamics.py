@@ -29,8 +29,9 @@ import jax.numpy as jnp
 import jax.scipy.linalg  # noqa: F401
 from jaxtyping import Array, Float
 
+from .._linalg import spd_solve
 from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, gamma, jacobian, prepare, residual,
-                       rows, schur, solve_schur, spd_solve, velocity_target)
+                       rows, schur, solve_schur, velocity_target)
 from ._algebra import LSQ_REFINE, LSQ_RTOL
 from ._algebra import scalar_mass_matrix  # noqa: F401  (re-exported for Mechanism.scalar_mass_matrix)
 from .forces import generalized_point_forces, point_forces, potential_energy, torque_forces

@@ -32,8 +32,9 @@ from .. import _ode
 from .._ode import ADJOINTS, Solution
 from ..errors import ModelError
 from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_project
+from .._linalg import spd_solve
 from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian, prepare, residual, rows,
-                       schur, solve_schur, spd_solve, velocity_target)
+                       schur, solve_schur, velocity_target)
 from .dynamics import _solve
 from .forces import tyre_deflections
 from .model import Mechanism

@@ -215,3 +215,9 @@ def test_base_uncertainty_refuses_too_few_residuals(true_params, sim_regressor, 
     few = compress(sim_regressor[:2], simulated[3][:2])  # 14 residuals: as many base parameters as residuals
     with pytest.raises(ValueError, match="do not exceed"):
         base_uncertainty(few, theta_from_params(true_params), rtol=1e-12)
+    zero_friction = np.array(true_params)
+    zero_friction[-1] = 0.0  # last joint's Coulomb friction: its coordinate is -inf
+    with pytest.raises(ValueError, match="joint 6 Coulomb friction"):
+        base_uncertainty(few, theta_from_params(zero_friction))
+    with pytest.raises(ValueError, match="block must be"):
+        bootstrap_base(sim_regressor, simulated[3], theta_from_params(true_params), np.eye(91), block=10_000)
