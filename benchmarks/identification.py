@@ -474,7 +474,10 @@ def markdown(out: dict) -> str:
              f"equal to ours to {out['twin_max_diff_Nm']:.0e} N m), same loss (torque, Coulomb "
              f"tanh(qd/{out['eps']:g})), same log-Cholesky consistency parameters and starts. sysid: its default "
              f"`mujoco.minimize` backend, finite-difference Jacobians, at most {out['settings']['sysid_max_iters']} "
-             "iterations; ours: autodiff regressor, vmapped Levenberg–Marquardt, compile included.", "",
+             "iterations (its residual loop over samples runs on one core); ours: autodiff regressor, vmapped "
+             "Levenberg–Marquardt, on both cores (XLA), its wall time including every compile (not shown separately: "
+             f"regressor build and LM compile are part of the {o['wall_s']:.1f} s). The simulated-arm section ran "
+             "pinned to one core for both.", "",
              "| tool | start | test RMSE pooled [N m] | " + " | ".join(j) + " | train RMSE | wall [s] | "
              "to ours' loss [s] | evaluations | min pseudo-inertia eig |", "|---" * (len(j) + 8) + "|"]
     lines.append(f"| ours | all {out['starts']} (vmapped) | **{o['test_rmse_pooled']:.2f}** | "
