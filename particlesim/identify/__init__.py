@@ -20,7 +20,7 @@ from ._fit import (
     theta_from_params,
     torque_residuals,
 )
-from ._uncertainty import BaseUncertainty, base_uncertainty, bootstrap_base
+from ._uncertainty import BaseUncertainty, base_uncertainty, bootstrap_base, robust_base_uncertainty
 from ._rollout import Windows, fit_rollout, make_windows, rollout_residuals
 from ._params import (
     inertia_from_log_cholesky,

@@ -13,9 +13,15 @@ When the fit is interior (no body at the edge of physical consistency) this is t
 ``sigma^2 S_r^-2`` in the basis of the regressor's singular vectors; when a consistency bound is active, the
 directions in which ``pi(theta)`` flattens carry less variance (the bound holds them).
 
-Both assume independent residuals. Real sampled data are correlated in time (model error is smooth), which an
-independent-row bootstrap does not see either; :func:`bootstrap_base` therefore also resamples contiguous blocks,
-whose spread is the honest one for such data.
+This assumes residuals of equal variance, independent of each other. Real data break both: joints have different
+residual levels and model error is smooth in time. :func:`robust_base_uncertainty` keeps the Gauss–Newton Hessian
+``H = J^T J`` and replaces ``sigma^2 H`` by the spread of the residual's own scores (a sandwich estimate),
+
+    ``cov(beta) = G H^+ (sum_b s_b s_b^T) H^+ G^T``,  ``s_b = sum over the samples t of block b of J_t^T e_t``,
+
+over single samples (``block = 1``: any variance per joint and sample, joints of one sample correlated) or over
+contiguous blocks of samples (correlation in time shorter than a block). :func:`bootstrap_base` resamples samples
+or the same contiguous blocks, an independent check of each.
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from jaxtyping import ArrayLike, Float
 from ._fit import CompressedLSQ, check_start, compress, params_from_theta
 from ._regressor import column_scale, identifiable_basis
 
-__all__ = ["BaseUncertainty", "base_uncertainty", "bootstrap_base"]
+__all__ = ["BaseUncertainty", "base_uncertainty", "bootstrap_base", "robust_base_uncertainty"]
 
 
 class BaseUncertainty(NamedTuple):
@@ -84,6 +90,40 @@ def base_uncertainty(lsq: CompressedLSQ, theta: Float[ArrayLike, " p"], *, basis
     cov = 0.5 * (cov + cov.T)
     return BaseUncertainty(basis, basis.T @ pi, cov, np.sqrt(np.clip(np.diag(cov), 0.0, None)), float(sigma),
                            lsq.count - rank)
+
+
+def robust_base_uncertainty(w: Float[ArrayLike, "N n p"], tau: Float[ArrayLike, "N n"],
+                            theta: Float[ArrayLike, " p"], basis: np.ndarray, *, mask=None, block: int = 1,
+                            pinv_rtol: float = 1e-12) -> BaseUncertainty:
+    """Sandwich standard errors of the base parameters at the fit ``theta`` (module docstring) from the rows of
+    the regressor ``w`` and torques ``tau`` (``mask``: the fitted entries, default all): scores summed over each
+    sample (``block = 1``) or over contiguous blocks of ``block`` samples, as :func:`bootstrap_base` resamples
+    them. ``sigma`` is the residual RMS; ``pinv_rtol`` as in :func:`base_uncertainty`."""
+    check_start(theta)
+    w, tau = np.asarray(w, dtype=float), np.asarray(tau, dtype=float)
+    if w.ndim != 3 or tau.shape != w.shape[:2]:
+        raise ValueError(f"w must be (N, n, p) and tau (N, n); got {w.shape} and {tau.shape}")
+    theta = jnp.asarray(theta, dtype=float)
+    if theta.shape != (w.shape[2],):
+        raise ValueError(f"theta has shape {theta.shape}; the regressor has {w.shape[2]} parameters")
+    if not 1 <= block <= tau.shape[0]:
+        raise ValueError(f"block must be between 1 and the number of samples ({tau.shape[0]}), got {block}")
+    mask = np.ones(tau.shape, bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), tau.shape)
+    dpi = np.asarray(jax.jacfwd(params_from_theta)(theta))
+    pi = np.asarray(params_from_theta(theta))
+    jac = np.where(mask[..., None], w @ dpi, 0.0)  # (N, n, q)
+    e = np.where(mask, w @ pi - tau, 0.0)
+    hinv = np.linalg.pinv(np.einsum("tjp,tjq->pq", jac, jac), rcond=pinv_rtol, hermitian=True)
+    scores = np.einsum("tjp,tj->tp", jac, e)
+    n_blocks = -(-scores.shape[0] // block)
+    pad = np.zeros((n_blocks * block - scores.shape[0], scores.shape[1]))
+    sums = np.concatenate([scores, pad]).reshape(n_blocks, block, -1).sum(axis=1)
+    g = basis.T @ dpi
+    cov = g @ hinv @ (sums.T @ sums) @ hinv @ g.T
+    cov = 0.5 * (cov + cov.T)
+    count, rank = int(mask.sum()), basis.shape[1]
+    return BaseUncertainty(basis, basis.T @ pi, cov, np.sqrt(np.clip(np.diag(cov), 0.0, None)),
+                           float(np.sqrt(np.sum(e ** 2) / count)), count - rank)
 
 
 def _resample(n: int, rng: np.random.Generator, block: int) -> np.ndarray:

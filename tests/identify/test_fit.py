@@ -11,7 +11,7 @@ from scipy.stats import chi2
 
 from particlesim.identify import (
     compress, fit_base_consistent, fit_consistent, identifiable_basis, model_with_params, params_from_theta, pseudo_inertia, regressor,
-    base_uncertainty, bootstrap_base, theta_from_params, torque_residuals,
+    base_uncertainty, bootstrap_base, robust_base_uncertainty, theta_from_params, torque_residuals,
 )
 from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics, gravity_torques, inverse_dynamics
@@ -209,6 +209,47 @@ def test_bootstrap_spread_agrees_with_gauss_newton(sim_regressor, noisy_fits):
           f"{ratio.min():.2f} .. {ratio.max():.2f} (median {np.median(ratio):.2f})")
     assert good.sum() >= 10
     assert np.all(ratio < BOOTSTRAP_FACTOR) and np.all(ratio > 1 / BOOTSTRAP_FACTOR), ratio
+
+
+HETERO_LEVELS = np.array([0.002, 0.005, 0.01, 0.02, 0.04, 0.06, 0.08])  # torque noise per joint, of its RMS torque
+
+
+def test_sandwich_errors_follow_unequal_noise_where_pooled_ones_do_not(true_params, sim_regressor, simulated,
+                                                                       noisy_fits):
+    """Noise 40x larger on the last joint than the first: the pooled-sigma Gauss-Newton errors misstate the
+    spread; the sandwich errors (scores per sample) agree with the bootstrap within the factor and cover the
+    truth. On equal noise (5 %) sandwich and pooled errors agree within the factor."""
+    basis, _ = identifiable_basis(sim_regressor, rtol=IDENTIFIABLE_RTOL)
+    sigma, noisy, lsq, fit = noisy_fits[0.05]
+    u = base_uncertainty(lsq, fit.best_theta, basis=basis)
+    robust = robust_base_uncertainty(sim_regressor, noisy, fit.best_theta, basis)
+    good = u.rel_std < WELL_IDENTIFIED
+    ratio = robust.std[good] / u.std[good]
+    assert np.all(ratio < BOOTSTRAP_FACTOR) and np.all(ratio > 1 / BOOTSTRAP_FACTOR), ratio
+
+    tau = simulated[3]
+    per_joint = HETERO_LEVELS * np.sqrt(np.mean(tau ** 2, axis=0))
+    noisy = tau + per_joint * np.random.default_rng(7).standard_normal(tau.shape)
+    lsq = compress(sim_regressor, noisy)
+    fit = fit_consistent(lsq, _start(true_params, 0)[None], max_steps=2000, verbose=False)
+    pooled = base_uncertainty(lsq, fit.best_theta, basis=basis)
+    robust = robust_base_uncertainty(sim_regressor, noisy, fit.best_theta, basis)
+    boot = bootstrap_base(sim_regressor, noisy, fit.best_theta, basis, count=32, seed=3)
+    good = robust.rel_std < WELL_IDENTIFIED
+    r_robust = boot.std(axis=0)[good] / robust.std[good]
+    r_pooled = boot.std(axis=0)[good] / pooled.std[good]
+    z = (robust.beta - basis.T @ true_params) / robust.std
+    print(f"  unequal noise, {good.sum()} well-identified: bootstrap / sandwich {r_robust.min():.2f} .. "
+          f"{r_robust.max():.2f}, bootstrap / pooled {r_pooled.min():.2f} .. {r_pooled.max():.2f}; "
+          f"{np.mean(np.abs(z) < 2):.0%} within 2 sandwich errors")
+    assert good.sum() >= 10
+    assert np.all(r_robust < BOOTSTRAP_FACTOR) and np.all(r_robust > 1 / BOOTSTRAP_FACTOR), r_robust
+    assert np.max(np.abs(np.log(r_pooled))) > np.max(np.abs(np.log(r_robust)))
+    assert np.mean(np.abs(z) < 2) >= COVERAGE
+    with pytest.raises(ValueError, match="block must be"):
+        robust_base_uncertainty(sim_regressor, noisy, fit.best_theta, basis, block=0)
+    with pytest.raises(ValueError, match=r"w must be \(N, n, p\)"):
+        robust_base_uncertainty(sim_regressor[0], noisy, fit.best_theta, basis)
 
 
 def test_base_uncertainty_refuses_too_few_residuals(true_params, sim_regressor, simulated):
