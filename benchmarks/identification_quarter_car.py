@@ -57,7 +57,7 @@ def _fd(model):
     def residual_jacobian(lp, z):
         lp = np.asarray(lp)
         batch = np.exp((lp[:, None, :] + eye[None]).reshape(-1, n))
-        h = np.asarray(model.heights(jnp.asarray(batch))).reshape(lp.shape[0], n + 1, -1)
+        h = np.asarray(model.outputs(jnp.asarray(batch))).reshape(lp.shape[0], n + 1, -1)
         r = h[:, 0] - np.asarray(z).ravel()[None]
         return r, np.swapaxes((h[:, 1:] - h[:, :1]) / FD_STEP, 1, 2)
 
@@ -68,7 +68,7 @@ def run(label: str, make) -> dict:
     """Time a whole fit on a fresh model built by ``make(model)`` (compile included)."""
     t0 = time.perf_counter()
     model = chassis_traces(TS)
-    z_true = np.asarray(model.heights(jnp.asarray(TRUE[None])))[0]
+    z_true = np.asarray(model.outputs(jnp.asarray(TRUE[None])))[0]
     t_data = time.perf_counter() - t0
     noisy = z_true + SIGMA * np.random.default_rng(SEED).standard_normal(z_true.shape)
     log: list = []
@@ -94,7 +94,7 @@ def model_accuracy() -> float:
     model = chassis_traces(TS)
     ref = chassis_traces(TS, rtol=1e-11, atol=1e-13, stabilise=True)
     p = jnp.asarray(TRUE[None])
-    return float(np.max(np.abs(np.asarray(model.heights(p)) - np.asarray(ref.heights(p)))))
+    return float(np.max(np.abs(np.asarray(model.outputs(p)) - np.asarray(ref.outputs(p)))))
 
 
 def main() -> dict:

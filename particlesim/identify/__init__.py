@@ -1,4 +1,5 @@
-"""Parameter identification of tree robots: consistent parameterisations, regressors, fits, uncertainty, rollouts."""
+"""Parameter identification: tree robots (consistent parameterisations, regressors, fits, uncertainty, rollouts)
+and mechanisms (:mod:`.traces`: constants from measured traces by autodiff through the rollouts)."""
 
 from ._data import (
     KRANG_ARM_GEAR,
@@ -21,6 +22,7 @@ from ._fit import (
     torque_residuals,
 )
 from ._uncertainty import BaseUncertainty, base_uncertainty, bootstrap_base, robust_base_uncertainty
+from .traces import TraceFit, TraceModel, fit_traces, trace_model
 from ._rollout import Windows, fit_rollout, make_windows, rollout_residuals
 from ._params import (
     inertia_from_log_cholesky,

@@ -37,7 +37,7 @@ def data(model):
     lp = np.log(STARTS[0])
     eye = JAC_FD_H * np.eye(TRUE.size)
     batch = np.exp(np.concatenate([np.log(TRUE)[None], lp[None], lp + eye, lp - eye]))
-    z = np.asarray(model.heights(jnp.asarray(batch)))
+    z = np.asarray(model.outputs(jnp.asarray(batch)))
     plus, minus = z[2:2 + TRUE.size], z[2 + TRUE.size:]
     jac_fd = ((plus - minus) / (2 * JAC_FD_H)).reshape(TRUE.size, -1).T
     return z[0], z[1], jac_fd
