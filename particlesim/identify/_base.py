@@ -22,14 +22,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optimistix as optx
 from jaxtyping import ArrayLike, Float
 
-from ._fit import CompressedLSQ, check_start, params_from_theta
+from ._fit import CompressedLSQ, _lm_starts, check_start, params_from_theta
 from ._regressor import column_scale, identifiable_basis
 
 __all__ = ["BaseParameters", "base_parameters", "BaseFit", "fit_base_consistent"]
@@ -78,19 +75,12 @@ def fit_base_consistent(lsq: CompressedLSQ, theta0: Float[ArrayLike, "S p"], *, 
     """
     check_start(theta0)
     base = base_parameters(lsq, rtol=rtol)
-    e_mat, b = jnp.asarray(base.basis.T), jnp.asarray(base.beta_hat)
-
-    def residual(theta, _):
-        return e_mat @ params_from_theta(theta) - b
-
-    solver = optx.LevenbergMarquardt(rtol=tol, atol=tol, linear_solver=lx.QR())
-
-    @jax.jit
-    def run(t0):
-        sol = optx.least_squares(residual, solver, t0, max_steps=max_steps, throw=False)
-        return sol.value, sol.stats["num_steps"]
-
-    theta, steps = jax.vmap(run)(jnp.atleast_2d(jnp.asarray(theta0, dtype=float)))
+    theta0 = jnp.atleast_2d(jnp.asarray(theta0, dtype=float))
+    # The residual E^T pi(theta) - beta_hat is fit_consistent's with (E^T, beta_hat) for (R, y): one compiled
+    # solver per shapes and settings serves both.
+    theta, steps = _lm_starts(theta0, jnp.asarray(base.basis.T), jnp.asarray(base.beta_hat),
+                              jnp.zeros(theta0.shape[-1]), jnp.asarray(0.0), rtol=float(tol), atol=float(tol),
+                              max_steps=int(max_steps), has_prior=False)
     pi = np.asarray(params_from_theta(theta))
     rel = np.linalg.norm(pi @ base.basis - base.beta_hat[None], axis=-1) / np.linalg.norm(base.beta_hat)
     rel = np.where(np.isfinite(rel), rel, np.inf)
