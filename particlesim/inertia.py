@@ -91,13 +91,14 @@ def _is_concrete(*xs) -> bool:
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(xs))
 
 
-def check_inertia(mass, com, inertia, name: str = "body", *, degenerate_ok: bool = False) -> None:
+def check_inertia(mass, com, inertia, name: str = "body", *, degenerate_ok: bool = False, atol: float = 0.0) -> None:
     """Raise :class:`InertiaError` naming ``name`` if ``(mass, com, inertia about CoM)`` is not physical.
 
     Conditions: finite numbers; shapes ``()``, ``(3,)``, ``(3, 3)``; ``mass > 0``; a symmetric tensor; principal
     moments ``> 0`` (``>= 0`` with ``degenerate_ok``, for rods and planar mass distributions); and the triangle
     inequalities ``I_k <= I_i + I_j`` between principal moments. Tolerances are :data:`PHYSICAL_RTOL` relative to
-    the trace. Does nothing for traced values (checks belong at model construction, outside ``jit``).
+    the trace, plus ``atol`` (the rounding of a tensor recovered from other quantities). Does nothing for traced
+    values (checks belong at model construction, outside ``jit``).
     """
     if not _is_concrete(mass, com, inertia):
         return
@@ -119,7 +120,7 @@ def check_inertia(mass, com, inertia, name: str = "body", *, degenerate_ok: bool
     if not np.allclose(i, i.T, rtol=0.0, atol=PHYSICAL_RTOL * scale):
         raise InertiaError(f"{name}: inertia tensor is not symmetric: {i.tolist()}")
     eig = np.linalg.eigvalsh(0.5 * (i + i.T))
-    tol = PHYSICAL_RTOL * scale
+    tol = PHYSICAL_RTOL * scale + float(atol)
     if degenerate_ok:
         if eig[0] < -tol:
             raise InertiaError(

@@ -141,8 +141,9 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
     or zero mass with inertia, a tensor that is not positive semi-definite, principal moments violating a triangle
     inequality); ``"balance"`` repairs such tensors as MuJoCo's ``balanceinertia`` does (negative principal moments
     clipped to zero, then all three set to their mean if a triangle inequality fails) and ``"warn"`` loads them
-    unchanged; both warn (:class:`~particlesim.errors.InertiaWarning`) naming every such link. Negative or zero
-    masses with a nonzero tensor are refused in every mode.
+    unchanged; both warn (:class:`~particlesim.errors.InertiaWarning`) naming every such link. A zero mass with a
+    nonzero tensor (as some files write a sensor frame) is refused, except that ``"balance"`` loads the link as
+    massless (the tensor dropped, the link named in the warning); negative masses are refused in every mode.
     """
     if limits not in ("warn", "ignore", "model"):
         raise ValueError(f"limits must be 'warn', 'ignore' or 'model', got {limits!r}")
@@ -295,7 +296,7 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
                       f"{', '.join(repr(j) for j in limited[:4])}): the joints move freely past them. Pass "
                       "limits='ignore' to accept this silently", UnmodelledLimitsWarning, stacklevel=2)
     params = np.zeros((n, 10))
-    flagged = []
+    flagged, dropped = [], []
     for ln, el in links.items():
         b = owner[ln]
         data = _inertial(el, ln)
@@ -304,6 +305,9 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
         m, c, i_com = data
         if m == 0.0 and not np.any(i_com):
             continue  # an explicitly massless link
+        if m == 0.0 and inertia == "balance":
+            dropped.append(ln)  # a tensor without mass: the nearest physical body is a massless link
+            continue
         try:
             check_inertia(m, c, i_com, f"link '{ln}'", degenerate_ok=True)
         except InertiaError as e:
@@ -322,6 +326,12 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
         what = "repaired (principal moments balanced)" if inertia == "balance" else "loaded unchanged"
         warnings.warn(f"{label}: non-physical inertia of {len(flagged)} link(s) {what}: "
                       f"{', '.join(repr(x) for x in flagged)}", InertiaWarning, stacklevel=2)
+    if dropped:
+        import warnings
+
+        warnings.warn(f"{label}: {len(dropped)} link(s) with zero mass and a nonzero inertia tensor loaded as "
+                      f"massless (tensor dropped): {', '.join(repr(x) for x in dropped)}", InertiaWarning,
+                      stacklevel=2)
     # every link merged by a fixed joint (or welded to the world) keeps its name as a frame of its owner
     moved = {jt["child"] for jt in movable}
     frames = [(ln, owner[ln], *pose[ln]) for ln in links if ln not in moved]

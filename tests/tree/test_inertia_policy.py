@@ -97,3 +97,44 @@ def test_negative_mass_is_refused_in_every_mode_and_rounded_zero_tensors_load():
     assert float(model.inertia[1, 0]) == 0.5
     with pytest.raises(ValueError, match="inertia must be 'strict', 'balance' or 'warn'"):
         load_urdf(_two_links(GOOD, GOOD), inertia="fix")
+
+
+def _arm_with(tip_inertial: str) -> str:
+    """A two-link arm whose second link carries a fixed ``tip`` link (a sensor frame) with ``tip_inertial``."""
+    return ('<robot name="tip"><link name="base"/>'
+            f'<link name="upper">{_inertial(2.0, 0.03, 0.028, 0.004, xyz="0.02 0 -0.15")}</link>'
+            f'<link name="fore">{_inertial(1.2, 0.012, 0.011, 0.002, xyz="0 0.01 -0.12")}</link>'
+            f'<link name="tip">{tip_inertial}</link>'
+            + _joint("shoulder", "base", "upper", "0 1 0", "0 0 1.0") + _joint("elbow", "upper", "fore", "0 1 0", "0 0 -0.3")
+            + '<joint name="tip_fixed" type="fixed"><parent link="fore"/><child link="tip"/><origin xyz="0 0 -0.3"/>'
+            '</joint></robot>')
+
+
+def test_zero_mass_with_a_tensor_is_refused_or_dropped_by_name():
+    """Bolt's feet: mass 0 with a 5e-7 tensor. Strict (and warn) refuse it naming the link; balance loads the
+    link as massless and says so; the result equals the arm without the tip's inertial."""
+    urdf = _arm_with(_inertial(0.0, 5.7e-7, 8.4e-7, 5.3e-7))
+    for policy in ("strict", "warn"):
+        with pytest.raises(InertiaError, match="link 'tip': mass must be positive, got 0.0"):
+            load_urdf(urdf, limits="ignore", inertia=policy)
+    with pytest.warns(InertiaWarning, match="zero mass and a nonzero inertia tensor loaded as massless.*'tip'"):
+        model = load_urdf(urdf, limits="ignore", inertia="balance")
+    np.testing.assert_array_equal(np.asarray(model.inertia), np.asarray(load_urdf(_arm_with(""), limits="ignore").inertia))
+
+
+def test_a_point_like_link_far_from_its_joint_is_judged_beyond_the_shift_rounding():
+    """iCub's shank: 1.26 kg 0.1 m from its joint with a ~1e-18 tensor. Balanced, it is a point mass; merged into
+    its owner and shifted back to the centre of mass, its tensor is rounding of size eps |J| (1e-18 here), which
+    the composite check must not read as a violated triangle inequality."""
+    shank = ('<inertial><mass value="1.264"/><origin xyz="-0.1071 0.00182 -0.00211"/><inertia ixx="1.10961e-18" '
+             'ixy="5.42101e-20" ixz="-5.42101e-20" iyy="0" iyz="8.47033e-22" izz="0"/></inertial>')
+    urdf = ('<robot name="leg"><link name="base"/>'
+            f'<link name="thigh">{_inertial(2.0, 0.03, 0.028, 0.004, xyz="0.02 0 -0.15")}</link>'
+            f'<link name="shank">{shank}</link>'
+            + _joint("hip", "base", "thigh", "0 1 0", "0 0 1.0") + _joint("knee", "thigh", "shank", "0 1 0", "0 0 -0.3")
+            + "</robot>")
+    with pytest.raises(InertiaError, match="link 'shank': .*(semi-definite|triangle inequality)"):
+        load_urdf(urdf, limits="ignore")
+    with pytest.warns(InertiaWarning, match="'shank'"):
+        model = load_urdf(urdf, limits="ignore", inertia="balance")
+    assert float(model.inertia[1, 0]) == 1.264
