@@ -49,11 +49,20 @@ HUMANOID = """<mujoco><option gravity="0.3 -0.2 -9.81"/><compiler angle="radian"
 <equality><joint joint1="wr" joint2="sh" polycoef="0.1 -0.5 0 0 0"/></equality></mujoco>"""
 
 
-def _reference(m, model, d):
+@jax.jit
+def _terms(model, q, qd):
+    """Ours at one state, as one compiled program per model (eager ops cost more): ``M``, bias, passive torques and
+    the link poses (also what :func:`_reference` needs to map MuJoCo's free-joint velocities)."""
+    return (mass_matrix(model, q), bias_forces(model, q, qd),
+            spring_torques(model, q) - friction_torques(model, qd), link_poses(model, q))
+
+
+def _reference(m, model, d, rot):
     """MuJoCo's M and bias in our coordinates: ``v_mj = T v`` (a free joint's linear velocity is in world axes in
-    MuJoCo) and the mimic map, ``M = Gm^T M_mj Gm``, ``b = Gm^T (b_mj + M_mj dGm/dt v)``."""
+    MuJoCo) and the mimic map, ``M = Gm^T M_mj Gm``, ``b = Gm^T (b_mj + M_mj dGm/dt v)``. ``rot``: our link
+    rotations at this state (``_terms(...)[3][0]``)."""
     q, qd = from_mujoco_state(model, m, d.qpos, d.qvel)
-    rot = np.asarray(link_poses(model, q)[0])
+    rot = np.asarray(rot)
     order, t_blocks, extra = [], [], np.zeros(m.nv)
     width = {"free": 6, "ball": 3}
     iv = 0
@@ -110,13 +119,13 @@ def test_mjcf_floating_body_with_multi_joint_bodies_against_mujoco():
         _random_state(m, model, d, rng)  # with the coupling MuJoCo would enforce: wr - wr0 = 0.1 - 0.5 (sh - sh0)
         sh, wr = (m.jnt_qposadr[m.joint(n).id] for n in ("sh", "wr"))
         assert abs(d.qpos[wr] - m.qpos0[wr] - 0.1 + 0.5 * (d.qpos[sh] - m.qpos0[sh])) < 1e-15
-        q, qd, gm, m_ref, b_ref = _reference(m, model, d)
-        assert max_rel(mass_matrix(model, q), m_ref) <= MJ_RTOL  # armature included
-        assert max_rel(bias_forces(model, q, qd), b_ref) <= MJ_RTOL
-        passive = spring_torques(model, q) - friction_torques(model, qd)  # the ball's spring, every damper
-        assert max_rel(passive, gm.T @ d.qfrc_passive) <= MJ_RTOL
+        q, qd = from_mujoco_state(model, m, d.qpos, d.qvel)
+        ours_m, ours_b, passive, (rot, pos) = _terms(model, q, qd)
+        _, _, gm, m_ref, b_ref = _reference(m, model, d, rot)
+        assert max_rel(ours_m, m_ref) <= MJ_RTOL  # armature included
+        assert max_rel(ours_b, b_ref) <= MJ_RTOL
+        assert max_rel(passive, gm.T @ d.qfrc_passive) <= MJ_RTOL  # the ball's spring, every damper
         # the foot's origin moves as MuJoCo's body frame (slide with ref, after two anchored hinges)
-        rot, pos = link_poses(model, q)
         foot = model.link_index("foot")
         assert np.max(np.abs(np.asarray(pos[foot]) - d.xpos[m.body("foot").id])) <= MJ_RTOL
         assert np.max(np.abs(np.asarray(rot[foot]) - d.xmat[m.body("foot").id].reshape(3, 3))) <= MJ_RTOL
@@ -182,12 +191,6 @@ REFUSED = {"mjx/test_data/pendula.xml": "tendon '.*' has armature, stiffness, da
            "mjx/test_data/ray.xml": "has no joints", "testdata/msh.xml": "has no joints"}
 
 
-@jax.jit
-def _terms(model, q, qd):
-    return (mass_matrix(model, q), bias_forces(model, q, qd),
-            spring_torques(model, q) - friction_torques(model, qd))
-
-
 @pytest.mark.slow
 def test_every_shipped_tree_model_against_mujoco():
     worst = {}
@@ -203,8 +206,9 @@ def test_every_shipped_tree_model_against_mujoco():
             model = load_mjcf(m, limits="ignore")
         d = mujoco.MjData(m)
         _random_state(m, model, d, np.random.default_rng(0))
-        q, qd, gm, m_ref, b_ref = _reference(m, model, d)
-        ours_m, ours_b, passive = _terms(model, q, qd)  # one compiled program per model (eager ops cost more)
+        q, qd = from_mujoco_state(model, m, d.qpos, d.qvel)
+        ours_m, ours_b, passive, (rot, _) = _terms(model, q, qd)
+        _, _, gm, m_ref, b_ref = _reference(m, model, d, rot)
         worst[rel] = (max_rel(ours_m, m_ref), max_rel(ours_b, b_ref))
         if m.ntendon == 0 and np.any(d.qfrc_passive):  # joint springs and dampers
             worst[rel] += (max_rel(passive, gm.T @ d.qfrc_passive),)
