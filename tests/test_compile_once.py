@@ -83,6 +83,20 @@ def test_mechanism_rollout_compiles_once(pendulum):
     assert _ode.TRACES["simulate_mechanism"] == before + 2
 
 
+def test_controller_coefficients_are_a_setting_of_both_entry_points(pendulum):
+    """``pid`` reaches diffrax's controller (the step counts change) and is part of the compile key, and both
+    controllers integrate the same motion to their tolerance."""
+    mech, x0 = pendulum
+    xd0 = jnp.zeros_like(x0)
+    before = _ode.TRACES["simulate_mechanism"]
+    kw = dict(solver="bosh3", rtol=1e-8, atol=1e-10)
+    a = simulate_mechanism(mech, x0, xd0, 0.0, 1.0, **kw)
+    b = simulate_mechanism(mech, x0, xd0, 0.0, 1.0, pid=(0.2, 0.4, 0.0), **kw)
+    assert _ode.TRACES["simulate_mechanism"] == before + 2
+    assert (int(a.steps), int(a.rejected)) != (int(b.steps), int(b.rejected))
+    assert np.max(np.abs(np.asarray(a.q[-1] - b.q[-1]))) <= 1e-6  # both at rtol 1e-8 over 1 s
+
+
 def test_tree_rollout_compiles_once(two_link):
     q0, qd0 = jnp.array([0.3, -0.2]), jnp.zeros(2)
     before = _ode.TRACES["simulate"]
@@ -112,6 +126,7 @@ def test_mechanism_parameters_by_name(pendulum):
     ({"dt0": 0.0}, "dt0 must be positive"),
     ({"saveat_ts": [0.0, 0.3]}, "saveat_ts must be non-decreasing times inside"),
     ({"solver": "rk45"}, "unknown solver 'rk45'"),
+    ({"pid": (0.2, 0.4)}, "pid must be three finite numbers"),
 ])
 def test_bad_settings_are_refused_alike(pendulum, two_link, kwargs, match):
     mech, x0 = pendulum
