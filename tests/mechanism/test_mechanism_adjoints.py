@@ -55,7 +55,17 @@ def with_theta(mech, th):
                             spring={"tip spring": {"stiffness": th[2], "damping": th[3]}})
 
 
+_ROLLOUTS = {}  # one jitted rollout per (pendulum, adjoint, stabilise, loss_only): each program compiles once
+
+
 def rollout_fn(pendulum, adjoint, stabilise=True, loss_only=False):
+    key = (id(pendulum), adjoint, stabilise, loss_only)
+    if key not in _ROLLOUTS:
+        _ROLLOUTS[key] = (pendulum, _rollout_fn(pendulum, adjoint, stabilise, loss_only))  # holds pendulum: id stays
+    return _ROLLOUTS[key][1]
+
+
+def _rollout_fn(pendulum, adjoint, stabilise, loss_only):
     mech, x0, xd0 = pendulum
 
     def f(th):
