@@ -41,7 +41,8 @@ import numpy as np
 
 from particlesim.data import data_dir
 from particlesim.simulate import simulate
-from particlesim.tree import forward_dynamics, load_urdf
+from particlesim.tree import forward_dynamics
+from particlesim.io import load_urdf
 
 from ._common import RESULTS, environment, median_time, timed
 

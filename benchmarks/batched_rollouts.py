@@ -40,7 +40,8 @@ from particlesim.batch import param_axes, sharded_vmap
 from particlesim.data import data_dir
 from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
 from particlesim.simulate import simulate
-from particlesim.tree import forward_dynamics, load_urdf
+from particlesim.tree import forward_dynamics
+from particlesim.io import load_urdf
 
 from ._common import RESULTS, environment, median_time, timed
 from ._native import Rollout, initial_state

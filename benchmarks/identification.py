@@ -53,7 +53,8 @@ from particlesim.identify import (
 )
 from particlesim.io.mjcf import mujoco_spec
 from particlesim.reports.identify_arm import EPS_GRID, select_friction_model
-from particlesim.tree import inverse_dynamics, load_urdf
+from particlesim.tree import inverse_dynamics
+from particlesim.io import load_urdf
 
 from ._common import RESULTS, environment
 

@@ -25,7 +25,8 @@ import mujoco
 import numpy as np
 
 from particlesim.data import data_dir
-from particlesim.tree import forward_dynamics, load_urdf
+from particlesim.tree import forward_dynamics
+from particlesim.io import load_urdf
 from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
 from particlesim.simulate import simulate
 

@@ -21,7 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from particlesim.tree import forward_dynamics, load_urdf
+from particlesim.tree import forward_dynamics
+from particlesim.io import load_urdf
 from particlesim.tree.aba import UNROLL_LINKS
 
 from ._common import RESULTS, environment, timed

@@ -38,7 +38,8 @@ import numpy as np
 from particlesim.data import data_dir
 from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model
 from particlesim.simulate import simulate
-from particlesim.tree import forward_dynamics, load_urdf
+from particlesim.tree import forward_dynamics
+from particlesim.io import load_urdf
 
 from . import _wp
 from ._common import median_time, timed

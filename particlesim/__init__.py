@@ -9,7 +9,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 from . import spatial  # noqa: E402
-from .errors import InertiaError, ModelError, NegativeMassWarning, ParseError, PlacementError  # noqa: E402
+from .errors import DataError, InertiaError, ModelError, NegativeMassWarning, ParseError, PlacementError  # noqa: E402
 from .inertia import RigidInertia, check_inertia  # noqa: E402
 
 __version__ = "0.1.0"
@@ -22,5 +22,6 @@ __all__ = [
     "InertiaError",
     "PlacementError",
     "ParseError",
+    "DataError",
     "NegativeMassWarning",
 ]

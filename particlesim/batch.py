@@ -27,9 +27,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+from jax.sharding import Mesh, PartitionSpec as P
 
-__all__ = ["AXIS", "batch_mesh", "stack", "param_axes", "sharded_vmap", "shard_batch"]
+__all__ = ["AXIS", "batch_mesh", "stack", "param_axes", "sharded_vmap"]
 
 #: Name of the batch axis of the device mesh.
 AXIS = "batch"
@@ -102,12 +102,6 @@ def _batch_size(leaves, axes) -> int:
         raise ValueError(f"batched arguments disagree on the batch size: {sorted(sizes)} "
                          "(or no batched array was given)")
     return sizes.pop()
-
-
-def shard_batch(tree: Any, mesh: Mesh) -> Any:
-    """Place a batched pytree on ``mesh`` split along its leading axis (optional: :func:`sharded_vmap` does it)."""
-    sharding = NamedSharding(mesh, P(AXIS))
-    return jax.tree.map(lambda x: jax.device_put(x, sharding) if eqx.is_array(x) else x, tree)
 
 
 def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh: Mesh | None = None,

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-__all__ = ["ModelError", "InertiaError", "PlacementError", "NegativeMassWarning", "ParseError", "InertiaWarning"]
+__all__ = ["ModelError", "InertiaError", "PlacementError", "NegativeMassWarning", "ParseError", "DataError",
+           "InertiaWarning"]
 
 
 class ModelError(ValueError):
@@ -19,6 +20,11 @@ class PlacementError(ModelError):
 
 class ParseError(ModelError):
     """A model file could not be parsed or describes something unsupported."""
+
+
+class DataError(ModelError):
+    """A data file or array is unusable (missing, NaN, mismatched lengths, a joint that never moves); names the
+    file/joint."""
 
 
 class NegativeMassWarning(UserWarning):

@@ -4,7 +4,6 @@ Conventions
 -----------
 * A rotation ``R`` of shape ``(3, 3)`` maps coordinates in a child frame to its parent frame:
   ``x_parent = R @ x_child + p``.
-* A pose is the pair ``(R, p)``; :func:`compose` chains them, :func:`invert` inverts one.
 * URDF roll-pitch-yaw: ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
 
 All functions are pure, jit/vmap/grad friendly and work on the trailing dimensions only where stated.
@@ -22,12 +21,8 @@ __all__ = [
     "rot_y",
     "rot_z",
     "rpy_to_matrix",
-    "axis_angle_to_matrix",
     "unit_axis_rotations",
     "quaternion_to_matrix",
-    "compose",
-    "invert",
-    "transform_point",
     "frame_from_points",
 ]
 
@@ -85,21 +80,10 @@ def rpy_to_matrix(rpy: Float[ArrayLike, "3"]) -> Float[Array, "3 3"]:
     return rot_z(rpy[..., 2]) @ rot_y(rpy[..., 1]) @ rot_x(rpy[..., 0])
 
 
-def axis_angle_to_matrix(axis: Float[ArrayLike, "3"], angle: ArrayLike) -> Float[Array, "3 3"]:
-    """Rodrigues' formula for a rotation by ``angle`` about the **unit** vector ``axis``.
-
-    Written as ``I + sin(a) K + (1 - cos(a)) K^2``; smooth in ``angle`` everywhere (no division), so its
-    gradients are finite at zero angle.
-    """
-    k = skew(axis)
-    a = jnp.asarray(angle)[..., None, None]
-    return jnp.eye(3) + jnp.sin(a) * k + (1.0 - jnp.cos(a)) * (k @ k)
-
-
 def unit_axis_rotations(axes: Float[ArrayLike, "n 3"], angles: Float[ArrayLike, " n"]) -> Float[Array, "n 3 3"]:
-    """Rotations by ``angles[i]`` about the **unit** vectors ``axes[i]``, same formula as
-    :func:`axis_angle_to_matrix` with ``K^2 = a a^T - E`` written out (no matrix products: cheap under ``jit`` on
-    CPU, where tiny ``dot`` ops do not fuse)."""
+    """Rotations by ``angles[i]`` about the **unit** vectors ``axes[i]`` (Rodrigues: ``I + sin(t) K + (1 - cos(t))
+    K^2`` with ``K^2 = a a^T - I`` written out; no matrix products: cheap under ``jit`` on CPU, where tiny ``dot``
+    ops do not fuse). Smooth in the angle (no division), so gradients are finite at zero angle."""
     a = jnp.asarray(axes)
     t = jnp.asarray(angles)[..., None, None]
     outer = a[..., :, None] * a[..., None, :]
@@ -116,26 +100,6 @@ def quaternion_to_matrix(quat: Float[ArrayLike, "4"]) -> Float[Array, "3 3"]:
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
     ])
-
-
-def compose(pose_ab, pose_bc):
-    """Chain poses: ``(R_ab, p_ab) o (R_bc, p_bc) = (R_ab R_bc, p_ab + R_ab p_bc)``."""
-    r_ab, p_ab = pose_ab
-    r_bc, p_bc = pose_bc
-    return r_ab @ r_bc, p_ab + r_ab @ p_bc
-
-
-def invert(pose):
-    """Inverse pose: ``(R, p)^-1 = (R^T, -R^T p)``."""
-    r, p = pose
-    rt = jnp.swapaxes(r, -1, -2)
-    return rt, -(rt @ p[..., None])[..., 0]
-
-
-def transform_point(pose, x: Float[ArrayLike, "3"]) -> Float[Array, "3"]:
-    """Map a point from the child frame of ``pose`` to its parent frame."""
-    r, p = pose
-    return r @ jnp.asarray(x) + p
 
 
 def frame_from_points(p0, p1, p2) -> Float[Array, "3 3"]:

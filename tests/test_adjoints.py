@@ -23,7 +23,8 @@ import pytest
 from jax.test_util import check_grads
 
 from particlesim.simulate import simulate
-from particlesim.tree import forward_dynamics, load_urdf
+from particlesim.tree import forward_dynamics
+from particlesim.io import load_urdf
 
 THREE_LINK_URDF = """<?xml version="1.0"?>
 <robot name="three_link">

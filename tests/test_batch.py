@@ -24,7 +24,8 @@ import pytest
 
 from particlesim.batch import batch_mesh, param_axes, sharded_vmap, stack
 from particlesim.simulate import simulate
-from particlesim.tree import forward_dynamics, load_urdf
+from particlesim.tree import forward_dynamics
+from particlesim.io import load_urdf
 
 SHARD_RTOL = 1e-12  # sharded vs unsharded batch, relative to the largest |value| of the batch (measured 3e-13)
 LOOP_RTOL = 1e-12  # a member of the batch vs the same rollout alone (measured 2e-13)
@@ -38,7 +39,8 @@ SCRIPT = textwrap.dedent("""
     from particlesim.batch import param_axes, sharded_vmap
     from particlesim.data import data_dir
     from particlesim.simulate import simulate
-    from particlesim.tree import forward_dynamics, load_urdf
+    from particlesim.io import load_urdf
+    from particlesim.tree import forward_dynamics
 
     model = load_urdf(data_dir() / "%s", gravity=(0.0, -9.81, 0.0))
     B = 16

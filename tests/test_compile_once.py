@@ -44,7 +44,7 @@ def pendulum():
 
 @pytest.fixture(scope="module")
 def two_link(tmp_path_factory):
-    from particlesim.tree import load_urdf
+    from particlesim.io import load_urdf
 
     p = tmp_path_factory.mktemp("urdf") / "two_link.urdf"
     p.write_text(TWO_LINK_URDF)

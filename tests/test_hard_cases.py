@@ -27,7 +27,8 @@ from particlesim import PlacementError, RigidInertia
 from particlesim.particles import PLACEMENT_RTOL, equivalent_particles
 from particlesim.scenes.krang import krang_urdf
 from particlesim.simulate import simulate
-from particlesim.tree import forward_dynamics, load_urdf, mass_matrix
+from particlesim.tree import forward_dynamics, mass_matrix
+from particlesim.io import load_urdf
 
 # ---------------------------------------------------------------------------------------------------------------
 # 1. Stiff spring-damper

@@ -12,14 +12,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from particlesim.tree import (
-    bias_forces,
-    forward_dynamics,
-    kinetic_energy,
-    load_urdf,
-    mass_matrix,
-    potential_energy,
-)
+from particlesim.tree import bias_forces, forward_dynamics, kinetic_energy, mass_matrix, potential_energy
+from particlesim.io import load_urdf
 from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
 from particlesim.simulate import simulate
 

@@ -45,7 +45,7 @@ def two_link_path(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def two_link(two_link_path):
-    from particlesim.tree import load_urdf
+    from particlesim.io import load_urdf
 
     return load_urdf(two_link_path, gravity=GRAVITY)
 

@@ -14,7 +14,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..errors import ModelError
+from ..errors import DataError
 
 __all__ = [
     "KRANG_ARM_KM",
@@ -36,10 +36,6 @@ KRANG_ARM_JOINTS = ("LJ1", "LJ2", "LJ3", "LJ4", "LJ5", "LJ6", "LJFT")
 
 #: A joint "never moves" when the range of its position over a run is below this (rad).
 MIN_JOINT_RANGE = 1e-3
-
-
-class DataError(ModelError):
-    """A data file is unusable (missing, NaN, mismatched lengths, a joint that never moves); names file/joint."""
 
 
 @dataclasses.dataclass(frozen=True)

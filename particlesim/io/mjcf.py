@@ -62,7 +62,7 @@ def _per_joint(value: float | Mapping[str, float] | None, name: str) -> float:
 
 
 def mujoco_model(urdf: str | Path, **kwargs) -> mujoco.MjModel:
-    """Compile a URDF into a ``mujoco.MjModel`` that is the same rigid tree as ``particlesim.tree.load_urdf``;
+    """Compile a URDF into a ``mujoco.MjModel`` that is the same rigid tree as ``particlesim.io.load_urdf``;
     ``mujoco_spec(urdf, **kwargs).compile()`` (see :func:`mujoco_spec` for the arguments)."""
     return mujoco_spec(urdf, **kwargs).compile()
 

@@ -32,7 +32,7 @@ from ..inertia import balance_inertia, check_inertia
 from ..spatial import rpy_to_matrix
 from ..tree.model import FREE, PRISMATIC, REVOLUTE, TreeModel
 
-__all__ = ["load_urdf", "parse_urdf", "UnmodelledLimitsWarning"]
+__all__ = ["load_urdf", "UnmodelledLimitsWarning"]
 
 _KINDS = {"revolute": REVOLUTE, "continuous": REVOLUTE, "prismatic": PRISMATIC, "fixed": None}
 
@@ -102,11 +102,6 @@ def read_urdf(source: Union[str, os.PathLike]):
     if root.tag != "robot":
         raise ParseError(f"{label}: root element is <{root.tag}>, expected <robot>")
     return label, root
-
-
-def parse_urdf(source, gravity=(0.0, 0.0, -9.81), **params) -> TreeModel:  # noqa: D401
-    """Alias of :func:`load_urdf`."""
-    return load_urdf(source, gravity, **params)
 
 
 class UnmodelledLimitsWarning(UserWarning):

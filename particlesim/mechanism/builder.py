@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ModelError
-from ..inertia import RigidInertia, check_inertia
+from ..inertia import RigidInertia
 from ..particles import N_PRIMARY, check_placement, equivalent_particles
 from .model import AppliedSpec, DotRows, DriveRows, LinearRows, Mechanism, Topology
 

@@ -21,7 +21,6 @@ sensitivities of a different (unprojected) flow. It is therefore refused with ``
 
 from __future__ import annotations
 
-import warnings
 
 import diffrax
 import jax

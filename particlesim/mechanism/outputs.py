@@ -200,7 +200,7 @@ def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, 
     from ..particles import primary_mass_matrix
     from .constraints import point_weights, points
     from .dynamics import accelerations_and_multipliers
-    from .forces import body_angular_velocity, point_forces
+    from .forces import point_forces
 
     topo = mech.topo
     _check_state(mech, x, "x")

@@ -65,7 +65,7 @@ def select_friction_model(w_tr: dict, torque, saturated) -> tuple:
 def identify_arm(out="out", *, step: int = 1, starts: int = 3, max_steps: int = 2000, rollout: bool = False,
                  seed: int = 0, verbose: bool = True) -> dict:
     """Run the pipeline above; ``step`` subsamples the *training* rows (test is always scored in full)."""
-    from ..tree import load_urdf
+    from ..io import load_urdf
     from ..tree.model import origin_params_check
 
     t_start = time.time()

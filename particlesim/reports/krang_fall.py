@@ -61,7 +61,8 @@ def _mujoco_rollout(urdf: Path, names, q0, ts):
 def krang_fall(out_dir: Path, *, progress: bool = True) -> dict:
     """Simulate, compare, write ``krang_fall.{csv,png,json}`` under ``out_dir``; return the figures."""
     from ..simulate import simulate
-    from ..tree import forward_dynamics, kinetic_energy, load_urdf, potential_energy
+    from ..tree import forward_dynamics, kinetic_energy, potential_energy
+    from ..io import load_urdf
 
     out_dir.mkdir(parents=True, exist_ok=True)
     urdf = data_dir() / "krang" / "urdf" / "krang_fixed_wheel_2018-04.urdf"

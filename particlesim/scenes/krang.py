@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Mapping, Optional
+from typing import Mapping
 
 import jax.numpy as jnp
 import numpy as np

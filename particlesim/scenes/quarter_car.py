@@ -158,8 +158,3 @@ def quarter_car(*, spring=None, tyre=None, masses=None):
     mb.tyre("tyre", "P10", tyre["stiffness"], tyre["damping"], tyre["radius"], normal=(0.0, 0.0, 1.0),
             ground=float(_p(10)[2]) - tyre["radius"])
     return mb.build(dof=3)
-
-
-def body_origins() -> dict[str, np.ndarray]:
-    """Global position of each body frame (its assumed CoM)."""
-    return {name: _com(name) for name in TABLE1}

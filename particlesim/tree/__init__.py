@@ -1,7 +1,8 @@
 """Lagrangian tree dynamics (Zafar, *Equations of Motion of Krang on Fixed Wheels*).
 
 A :class:`TreeModel` holds static topology and differentiable parameters; every function is pure and takes
-the model first. ``A(q) qdd + C(q, qd) qd + Q(q) + Gamma_f = tau``.
+the model first. Models come from :func:`particlesim.io.load_urdf` / :func:`particlesim.io.load_mjcf` or are
+written directly. ``A(q) qdd + C(q, qd) qd + Q(q) + Gamma_f = tau``.
 
 Batching over parameter sets::
 
@@ -29,7 +30,6 @@ __all__ = [
     "TreeModel",
     "REVOLUTE",
     "PRISMATIC",
-    "load_urdf",
     "mass_matrix",
     "bias_forces",
     "coriolis_matrix",
@@ -53,12 +53,3 @@ __all__ = [
     "wrench_torques",
 ]
 
-
-def __getattr__(name):
-    # ``load_urdf`` lives in ``particlesim.io.urdf``, which imports this package: resolve it lazily so that
-    # ``import particlesim.io`` and ``import particlesim.tree`` work in either order.
-    if name == "load_urdf":
-        from ..io.urdf import load_urdf
-
-        return load_urdf
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

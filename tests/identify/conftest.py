@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from particlesim.identify import load_arm_run
-from particlesim.tree import load_urdf
+from particlesim.io import load_urdf
 
 
 @pytest.fixture(scope="session")

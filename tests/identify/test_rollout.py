@@ -14,7 +14,8 @@ from particlesim.identify import (
     theta_from_params,
 )
 from particlesim.simulate import simulate
-from particlesim.tree import forward_dynamics, load_urdf
+from particlesim.tree import forward_dynamics
+from particlesim.io import load_urdf
 
 EPS = 0.05  # rad/s, Coulomb smoothing
 ODE_RTOL, ODE_ATOL = 1e-10, 1e-12  # fit (data: 100x tighter, so data and model differ only by solver error)

@@ -2,7 +2,7 @@
 
 import pytest
 
-from particlesim.tree import load_urdf
+from particlesim.io import load_urdf
 
 DART_GRAVITY = (0.0, -9.81, 0.0)
 

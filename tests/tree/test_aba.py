@@ -9,7 +9,8 @@ import pytest
 from jax.test_util import check_grads
 
 from particlesim.errors import ModelError
-from particlesim.tree import forward_dynamics, inverse_dynamics, load_urdf
+from particlesim.tree import forward_dynamics, inverse_dynamics
+from particlesim.io import load_urdf
 from particlesim.tree.aba import UNROLL_LINKS, supports_aba
 from tree_helpers import PinocchioOracle, max_rel, random_tree_urdf
 

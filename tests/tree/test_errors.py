@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from particlesim.errors import InertiaError, ModelError, ParseError
-from particlesim.tree import TreeModel, load_urdf
+from particlesim.tree import TreeModel
+from particlesim.io import load_urdf
 
 INERTIAL = ('<inertial><mass value="1"/><origin xyz="0 0 0.1"/>'
             '<inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial>')

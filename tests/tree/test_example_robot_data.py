@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from particlesim.errors import InertiaError, ParseError
-from particlesim.tree import kinetic_energy, load_urdf
+from particlesim.tree import kinetic_energy
+from particlesim.io import load_urdf
 from tree_helpers import batched_terms, max_rel, states
 
 #: Float64 implementations of the same rigid-body model.

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from particlesim.errors import InertiaError, InertiaWarning
-from particlesim.tree import bias_forces, forward_dynamics, link_jacobian, load_urdf, mass_matrix
+from particlesim.tree import bias_forces, forward_dynamics, link_jacobian, mass_matrix
+from particlesim.io import load_urdf
 from tree_helpers import PinocchioOracle, max_rel
 
 #: Float64 implementations of the same rigid-body model (Pinocchio, MuJoCo C).

@@ -7,7 +7,8 @@ import pytest
 from particlesim.errors import ModelError
 from particlesim.io import load_mjcf
 from particlesim.simulate import simulate
-from particlesim.tree import TreeModel, forward_dynamics, limit_torques, load_urdf, potential_energy
+from particlesim.tree import TreeModel, forward_dynamics, limit_torques, potential_energy
+from particlesim.io import load_urdf
 
 #: Adaptive Dopri8 at rtol 1e-11 stepping through the two kinks (contact, release) against the closed form.
 CLOSED_FORM_TOL = 1e-9  # measured 2e-11

@@ -13,7 +13,8 @@ from particlesim.scenes.krang import (
     krang_urdf,
     urdf_path,
 )
-from particlesim.tree import coriolis_times_qdot, gravity_torques, load_urdf, mass_matrix
+from particlesim.tree import coriolis_times_qdot, gravity_torques, mass_matrix
+from particlesim.io import load_urdf
 from particlesim.tree.kinematics import joint_transforms
 from tree_helpers import DART_DOF_ORDER, KRANG_URDFS, max_rel
 

@@ -18,11 +18,11 @@ from particlesim.tree import (
     forward_dynamics,
     kinetic_energy,
     link_jacobian,
-    load_urdf,
     mass_matrix,
     potential_energy,
     wrench_torques,
 )
+from particlesim.io import load_urdf
 
 KRANG_GRAVITY = (0.0, -9.81, 0.0)
 #: Forward dynamics against Pinocchio's ABA at the singular pose (both float64 rigid-body algorithms).

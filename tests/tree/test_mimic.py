@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from particlesim.errors import ModelError, ParseError
-from particlesim.tree import TreeModel, forward_dynamics, friction_torques, kinetic_energy, load_urdf, mass_matrix
+from particlesim.tree import TreeModel, forward_dynamics, friction_torques, kinetic_energy, mass_matrix
+from particlesim.io import load_urdf
 from tree_helpers import PinocchioOracle, batched_terms, max_rel, random_tree_urdf, states
 
 #: Both sides are float64 implementations of the same reduced rigid-body model.

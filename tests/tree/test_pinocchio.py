@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from particlesim.tree import coriolis_times_qdot, load_urdf
+from particlesim.tree import coriolis_times_qdot
+from particlesim.io import load_urdf
 from tree_helpers import KRANG_URDFS, PinocchioOracle, batched_terms, max_rel, random_tree_urdf, states
 
 #: Both sides are float64 implementations of the same rigid-body model.

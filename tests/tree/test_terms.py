@@ -10,10 +10,10 @@ from particlesim.tree import (
     friction_torques,
     link_jacobian,
     link_poses,
-    load_urdf,
     mass_matrix,
     wrench_torques,
 )
+from particlesim.io import load_urdf
 from tree_helpers import max_rel, random_tree_urdf
 
 EXACT_RTOL = 1e-12
