@@ -5,8 +5,13 @@ Two equivalent descriptions are used across the package:
 * :class:`RigidInertia` — mass ``m``, centre of mass ``c`` and inertia tensor ``I_G`` *about the CoM*, all in the
   body frame.
 * the 10-vector of the Krang report (Zafar §5.1), *about the frame origin*:
-  ``[m, m cx, m cy, m cz, XX, XY, XZ, YY, YZ, ZZ]`` with ``J_O = I_G + m (|c|^2 E - c c^T)``
-  (see :func:`to_origin_params` / :meth:`RigidInertia.from_origin_params`).
+  ``[m, m cx, m cy, m cz, XX, XY, XZ, YY, YZ, ZZ]`` with ``J_O = I_G + m (|c|^2 E - c c^T)``.
+
+The 10-vector has one codec, here, used by every module: :func:`pack_params` / :func:`unpack_params` (the layout:
+``(m, m c, J_O)`` <-> ``(..., 10)``), :func:`origin_params` / :func:`com_params` (with the parallel-axis shift:
+``(m, c, I_G)`` <-> 10-vector), :func:`sym_from_six` / :func:`six_from_sym` (a symmetric tensor <-> its six
+entries ``XX, XY, XZ, YY, YZ, ZZ``, URDF's ``ixx ixy ixz iyy iyz izz`` order). They work on NumPy arrays in NumPy
+(exact, for loaders and checks) and on anything else in JAX (traced, batched over leading axes).
 
 The second moment (``S = sum m_i r_i r_i^T``) and the inertia tensor are related by ``I = tr(S) E - S`` and
 ``S = tr(I)/2 E - I``; equivalent-particle solves match ``S`` (Attia eqs. (3)–(8)).
@@ -24,6 +29,12 @@ from .errors import InertiaError
 
 __all__ = [
     "RigidInertia",
+    "pack_params",
+    "unpack_params",
+    "origin_params",
+    "com_params",
+    "sym_from_six",
+    "six_from_sym",
     "inertia_about_point",
     "inertia_about_com",
     "rotate_inertia",
@@ -42,6 +53,56 @@ PHYSICAL_RTOL = 1e-9
 #: ``max(trace, mass * POINT_RADIUS**2)``, so a rounded zero tensor (a -2e-35 principal moment) is not judged against
 #: a zero trace.
 POINT_RADIUS = 1e-6
+
+
+def _xp(*xs):
+    """NumPy for NumPy/Python inputs (static model building stays exact and cheap), JAX otherwise."""
+    return np if all(isinstance(x, (np.ndarray, np.generic, float, int)) for x in xs) else jnp
+
+
+def sym_from_six(six) -> Float[Array, "... 3 3"]:
+    """``[XX, XY, XZ, YY, YZ, ZZ]`` (last axis) -> the symmetric ``(..., 3, 3)`` tensor."""
+    xp = _xp(six)
+    six = xp.asarray(six)
+    xx, xy, xz, yy, yz, zz = (six[..., k] for k in range(6))
+    return xp.stack([xp.stack([xx, xy, xz], -1), xp.stack([xy, yy, yz], -1), xp.stack([xz, yz, zz], -1)], -2)
+
+
+def six_from_sym(j) -> Float[Array, "... 6"]:
+    """The six independent entries ``[XX, XY, XZ, YY, YZ, ZZ]`` of symmetric ``(..., 3, 3)`` tensors."""
+    xp = _xp(j)
+    j = xp.asarray(j)
+    return xp.stack([j[..., 0, 0], j[..., 0, 1], j[..., 0, 2], j[..., 1, 1], j[..., 1, 2], j[..., 2, 2]], -1)
+
+
+def pack_params(mass, first_moment, j_origin) -> Float[Array, "... 10"]:
+    """``(m (...), m c (..., 3), J_O (..., 3, 3))`` -> 10-vectors ``[m, m c, XX, XY, XZ, YY, YZ, ZZ]``."""
+    xp = _xp(mass, first_moment, j_origin)
+    mass = xp.asarray(mass)
+    return xp.concatenate([mass[..., None], xp.asarray(first_moment), six_from_sym(j_origin)], -1)
+
+
+def unpack_params(params) -> tuple:
+    """10-vectors ``(..., 10)`` -> ``(m (...), m c (..., 3), J_O (..., 3, 3))``, the inertia about the origin."""
+    xp = _xp(params)
+    p = xp.asarray(params)
+    return p[..., 0], p[..., 1:4], sym_from_six(p[..., 4:10])
+
+
+def origin_params(mass, com, i_com) -> Float[Array, "... 10"]:
+    """``(m, c, I_G)`` (one body, its frame) -> the 10-vector about the frame origin (parallel-axis shift)."""
+    xp = _xp(mass, com, i_com)
+    c = xp.asarray(com)
+    j = xp.asarray(i_com) + mass * (xp.dot(c, c) * xp.eye(3) - xp.outer(c, c))
+    return pack_params(mass, mass * c, j)
+
+
+def com_params(params) -> tuple:
+    """Inverse of :func:`origin_params` for one 10-vector with ``m != 0``: ``(m, c, I_G)``."""
+    xp = _xp(params)
+    m, h, j = unpack_params(params)
+    c = h / m
+    return m, c, j - m * (xp.dot(c, c) * xp.eye(3) - xp.outer(c, c))
 
 
 def inertia_about_point(i_com, mass, com, point) -> Float[Array, "3 3"]:
@@ -77,14 +138,9 @@ def inertia_from_second_moment(s) -> Float[Array, "3 3"]:
 def rotate_origin_params(params, rotation) -> Float[Array, "... 10"]:
     """Re-express origin 10-vectors ``[m, m c, XX, XY, XZ, YY, YZ, ZZ]`` (frame b) in frame a with the same origin,
     ``rotation = R_ab``: ``m c -> R m c``, ``J -> R J R^T``."""
-    p = jnp.asarray(params)
     r = jnp.asarray(rotation)
-    xx, xy, xz, yy, yz, zz = (p[..., k] for k in range(4, 10))
-    j = jnp.stack([jnp.stack([xx, xy, xz], -1), jnp.stack([xy, yy, yz], -1), jnp.stack([xz, yz, zz], -1)], -2)
-    j = r @ j @ jnp.swapaxes(r, -1, -2)
-    ms = (r @ p[..., 1:4, None])[..., 0]
-    six = jnp.stack([j[..., 0, 0], j[..., 0, 1], j[..., 0, 2], j[..., 1, 1], j[..., 1, 2], j[..., 2, 2]], -1)
-    return jnp.concatenate([p[..., :1], ms, six], -1)
+    m, ms, j = unpack_params(jnp.asarray(params))
+    return pack_params(m, (r @ ms[..., None])[..., 0], r @ j @ jnp.swapaxes(r, -1, -2))
 
 
 def _is_concrete(*xs) -> bool:
@@ -208,10 +264,8 @@ class RigidInertia(eqx.Module):
         p = jnp.asarray(params, dtype=float)
         if p.shape != (10,):
             raise InertiaError(f"{name}: origin parameters must have shape (10,), got {p.shape}")
-        m = p[0]
-        c = p[1:4] / m
-        j = jnp.array([[p[4], p[5], p[6]], [p[5], p[7], p[8]], [p[6], p[8], p[9]]])
-        return cls(m, c, inertia_about_com(j, m, c, jnp.zeros(3)), name=name, degenerate_ok=degenerate_ok)
+        m, c, i_com = com_params(p)
+        return cls(m, c, i_com, name=name, degenerate_ok=degenerate_ok)
 
     def about(self, point: ArrayLike) -> Float[Array, "3 3"]:
         """Inertia tensor about ``point`` (body axes)."""
@@ -219,10 +273,7 @@ class RigidInertia(eqx.Module):
 
     def to_origin_params(self) -> Float[Array, "10"]:
         """The report's 10-vector ``[m, m c, XX, XY, XZ, YY, YZ, ZZ]`` about the frame origin."""
-        j = self.about(jnp.zeros(3))
-        return jnp.concatenate(
-            [self.mass[None], self.mass * self.com, jnp.stack([j[0, 0], j[0, 1], j[0, 2], j[1, 1], j[1, 2], j[2, 2]])]
-        )
+        return origin_params(self.mass, self.com, self.inertia)
 
     def second_moment(self) -> Float[Array, "3 3"]:
         """``sum m r r^T`` about the body-frame origin."""

@@ -8,11 +8,15 @@ from hypothesis import strategies as st
 
 from particlesim import InertiaError, RigidInertia
 from particlesim.inertia import (
+    com_params,
     inertia_about_com,
     inertia_about_point,
     inertia_from_second_moment,
+    origin_params,
+    pack_params,
     rotate_inertia,
     second_moment_from_inertia,
+    unpack_params,
 )
 from particlesim.spatial import rpy_to_matrix
 
@@ -65,6 +69,35 @@ def test_origin_params_round_trip():
     again = RigidInertia.from_origin_params(p)
     np.testing.assert_allclose(again.inertia, body.inertia, rtol=0, atol=1e-15)
     np.testing.assert_allclose(again.com, body.com, rtol=0, atol=1e-15)
+
+
+@given(st.integers(0, 2**31 - 1))
+@settings(max_examples=20, deadline=None)
+def test_ten_vector_codec_against_point_mass_sums_and_pinocchio(seed):
+    """One codec for the 10-vector: its NumPy path (loaders) and JAX path (dynamics) agree, each equals the brute
+    sums of a point-mass cloud about the origin and Pinocchio's dynamic parameters (their order is XX, XY, YY, XZ,
+    YZ, ZZ), and com_params inverts origin_params."""
+    import pinocchio as pin
+
+    m, r = _cloud(seed)
+    mass = m.sum()
+    com = (m[:, None] * r).sum(0) / mass
+    i_com = _inertia_of_cloud(m, r, com)
+    expected = np.concatenate([[mass], (m[:, None] * r).sum(0), _inertia_of_cloud(m, r, np.zeros(3))[np.triu_indices(3)]])
+    scale = np.abs(expected).max()
+    p_np = origin_params(mass, com, i_com)
+    assert isinstance(p_np, np.ndarray)
+    np.testing.assert_allclose(p_np, expected, rtol=0, atol=RTOL * scale)
+    np.testing.assert_allclose(origin_params(jnp.asarray(mass), jnp.asarray(com), jnp.asarray(i_com)), p_np, rtol=0,
+                               atol=RTOL * scale)
+    dyn = pin.Inertia(mass, com, i_com).toDynamicParameters()
+    np.testing.assert_allclose(p_np[[0, 1, 2, 3, 4, 5, 7, 6, 8, 9]], dyn, rtol=0, atol=RTOL * scale)
+    m2, c2, i2 = com_params(p_np)
+    np.testing.assert_allclose(c2, com, rtol=0, atol=RTOL * np.abs(com).max())
+    np.testing.assert_allclose(i2, i_com, rtol=0, atol=RTOL * scale)
+    batch = np.stack([p_np, 2.0 * p_np])
+    np.testing.assert_array_equal(pack_params(*unpack_params(batch)), batch)
+    np.testing.assert_array_equal(np.asarray(pack_params(*unpack_params(jnp.asarray(batch)))), batch)
 
 
 def test_kinetic_energy_matches_cloud():

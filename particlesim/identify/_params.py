@@ -33,6 +33,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from ..inertia import pack_params, unpack_params
+
 __all__ = [
     "pseudo_inertia",
     "params_from_pseudo_inertia",
@@ -45,15 +47,8 @@ __all__ = [
 
 def pseudo_inertia(params: Float[ArrayLike, "... 10"]) -> Float[Array, "... 4 4"]:
     """The 4x4 pseudo-inertia ``[[tr(J)/2 E - J, m c], [m c^T, m]]`` of 10-vectors about the frame origin."""
-    p = jnp.asarray(params)
-    m, h = p[..., 0], p[..., 1:4]
-    xx, xy, xz, yy, yz, zz = (p[..., k] for k in range(4, 10))
-    half_tr = 0.5 * (xx + yy + zz)
-    sig = jnp.stack([
-        jnp.stack([half_tr - xx, -xy, -xz], -1),
-        jnp.stack([-xy, half_tr - yy, -yz], -1),
-        jnp.stack([-xz, -yz, half_tr - zz], -1),
-    ], -2)
+    m, h, j = unpack_params(jnp.asarray(params))
+    sig = 0.5 * jnp.trace(j, axis1=-2, axis2=-1)[..., None, None] * jnp.broadcast_to(jnp.eye(3), j.shape) - j  # second moment about the origin
     top = jnp.concatenate([sig, h[..., :, None]], -1)
     bottom = jnp.concatenate([h, m[..., None]], -1)[..., None, :]
     return jnp.concatenate([top, bottom], -2)
@@ -63,11 +58,8 @@ def params_from_pseudo_inertia(p4: Float[ArrayLike, "... 4 4"]) -> Float[Array, 
     """Inverse of :func:`pseudo_inertia`: ``J = tr(Sigma) E - Sigma``, ``h = P[:3, 3]``, ``m = P[3, 3]``."""
     p4 = jnp.asarray(p4)
     s = p4[..., :3, :3]
-    tr = s[..., 0, 0] + s[..., 1, 1] + s[..., 2, 2]
-    return jnp.stack([
-        p4[..., 3, 3], p4[..., 0, 3], p4[..., 1, 3], p4[..., 2, 3],
-        tr - s[..., 0, 0], -s[..., 0, 1], -s[..., 0, 2], tr - s[..., 1, 1], -s[..., 1, 2], tr - s[..., 2, 2],
-    ], -1)
+    j = jnp.trace(s, axis1=-2, axis2=-1)[..., None, None] * jnp.broadcast_to(jnp.eye(3), s.shape) - s
+    return pack_params(p4[..., 3, 3], p4[..., :3, 3], j)
 
 
 def _upper_factor(theta):

@@ -33,6 +33,7 @@ import mujoco
 import numpy as np
 
 from ..errors import ModelError, ParseError
+from ..inertia import origin_params
 from ..spatial import quaternion_to_matrix
 from ..tree.model import BALL, FREE, PRISMATIC, REVOLUTE, TreeModel
 from .urdf import UnmodelledLimitsWarning
@@ -158,10 +159,7 @@ def load_mjcf(source: Union[str, os.PathLike, mujoco.MjModel], *, limits: str = 
             ri = rb @ _quat_wxyz(m.body_iquat[b])
             c = pb + rb @ m.body_ipos[b]
             i_com = ri @ np.diag(m.body_inertia[b]) @ ri.T
-            mass = float(m.body_mass[b])
-            j0 = i_com + mass * (c @ c * np.eye(3) - np.outer(c, c))
-            inertia[o] = inertia.get(o, 0.0) + np.array([mass, *(mass * c), j0[0, 0], j0[0, 1], j0[0, 2], j0[1, 1],
-                                                         j0[1, 2], j0[2, 2]])
+            inertia[o] = inertia.get(o, 0.0) + origin_params(float(m.body_mass[b]), c, i_com)
     if not links:
         raise ParseError(f"{label}: the model has no joints (nothing moves)")
     n = len(links)

@@ -28,7 +28,7 @@ from typing import Optional, Union
 import numpy as np
 
 from ..errors import InertiaError, InertiaWarning, ModelError, ParseError
-from ..inertia import balance_inertia, check_inertia
+from ..inertia import balance_inertia, check_inertia, origin_params, sym_from_six
 from ..spatial import rpy_to_matrix
 from ..tree.model import FREE, PRISMATIC, REVOLUTE, TreeModel
 
@@ -73,14 +73,7 @@ def _inertial(link, name: str):
     if it is None:
         raise ParseError(f"{where}: missing <inertia .../>")
     vals = [_floats(it.get(k, "0"), 1, None, f"{where} {k}")[0] for k in keys]
-    xx, xy, xz, yy, yz, zz = vals
-    i_local = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
-    return m, c, r @ i_local @ r.T
-
-
-def _origin_params(m, c, i_com) -> np.ndarray:
-    j = i_com + m * (c @ c * np.eye(3) - np.outer(c, c))
-    return np.array([m, *(m * c), j[0, 0], j[0, 1], j[0, 2], j[1, 1], j[1, 2], j[2, 2]])
+    return m, c, r @ sym_from_six(np.array(vals)) @ r.T
 
 
 def read_urdf(source: Union[str, os.PathLike]):
@@ -314,7 +307,7 @@ def load_urdf(source: Union[str, os.PathLike], gravity=(0.0, 0.0, -9.81), *, vis
                 check_inertia(m, c, i_com, f"link '{ln}' (balanced)", degenerate_ok=True)
             flagged.append(ln)
         r, p = pose[ln]
-        params[b] += _origin_params(m, r @ c + p, r @ i_com @ r.T)
+        params[b] += origin_params(m, r @ c + p, r @ i_com @ r.T)
     if flagged:
         import warnings
 

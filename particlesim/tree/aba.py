@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .energy import split_params
+from ..inertia import unpack_params
 from .model import PRISMATIC, REVOLUTE, TreeModel
 
 __all__ = ["UNROLL_LINKS", "supports_aba", "aba"]
@@ -176,7 +176,7 @@ def _aba_unrolled(model: TreeModel, q, qd, tau):
     n, dtype, nb = model.n_joints, q.dtype, q.ndim - 1
     every = np.arange(n)
     r_rel, p_rel = _joint_transforms(model, q, every, dtype)
-    m, ms, jl = split_params(model.inertia)
+    m, ms, jl = unpack_params(model.inertia)
     ax, rev = jnp.asarray(model.axes_array, dtype), model.is_revolute.astype(float)
     arm = jnp.zeros(n, dtype) if model.rotor_inertia is None else model.rotor_inertia
     eye = _tail(jnp.eye(3, dtype=dtype), nb) + jnp.zeros(q.shape[1:], dtype)
@@ -214,7 +214,7 @@ def _aba_loop(model: TreeModel, q, qd, tau):
     bshape = q.shape[1:]
     order, parent_pos = _order(model.parents)
     r_rel, p_rel = _joint_transforms(model, q[order], order, dtype)
-    m, ms, jl = split_params(model.inertia[order])
+    m, ms, jl = unpack_params(model.inertia[order])
     eye = _tail(jnp.eye(3, dtype=dtype), nb) + jnp.zeros(bshape, dtype)
     arm = (jnp.zeros(n, dtype) if model.rotor_inertia is None else model.rotor_inertia[order]).astype(dtype)
     at, parent = jnp.arange(n, dtype=jnp.int32), jnp.asarray(parent_pos)

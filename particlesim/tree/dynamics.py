@@ -25,7 +25,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .aba import UNROLL_LINKS, aba, supports_aba
-from .energy import split_params
+from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
 from .._linalg import spd_solve
@@ -70,7 +70,7 @@ def _check(model: TreeModel, **vectors) -> None:
 def _bodies(model: TreeModel, q) -> _Bodies:
     model.check_quaternions_nonzero(q)  # concrete values only
     rot, pos = jax.lax.optimization_barrier(link_poses(model, q))
-    m, ms, j = split_params(model.inertia)
+    m, ms, j = unpack_params(model.inertia)
     hl = _mv(rot, ms)  # first moment about O_j, world axes
     jw = _mm(_mm(rot, j), jnp.swapaxes(rot, -1, -2))
     eye = jnp.eye(3)[None]

@@ -10,19 +10,11 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from ..inertia import unpack_params
 from .kinematics import limit_deflections, link_poses, link_velocities, spring_deflections
 from .model import TreeModel
 
-__all__ = ["split_params", "link_kinetic_energies", "kinetic_energy", "potential_energy"]
-
-
-def split_params(params: Float[Array, "... 10"]):
-    """``[m, MX, MY, MZ, XX, XY, XZ, YY, YZ, ZZ]`` -> ``(m (...), MS (..., 3), J (..., 3, 3))``."""
-    m = params[..., 0]
-    ms = params[..., 1:4]
-    xx, xy, xz, yy, yz, zz = (params[..., k] for k in range(4, 10))
-    j = jnp.stack([jnp.stack([xx, xy, xz], -1), jnp.stack([xy, yy, yz], -1), jnp.stack([xz, yz, zz], -1)], -2)
-    return m, ms, j
+__all__ = ["link_kinetic_energies", "kinetic_energy", "potential_energy"]
 
 
 def link_kinetic_energies(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"]) -> Float[Array, " n"]:
@@ -32,7 +24,7 @@ def link_kinetic_energies(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float
     (eq. 18) is not a link energy; see :func:`kinetic_energy`.
     """
     w, v = link_velocities(model, q, qd)
-    m, ms, j = split_params(model.inertia)
+    m, ms, j = unpack_params(model.inertia)
     jw = (j @ w[..., None])[..., 0]
     return 0.5 * (jnp.sum(w * jw, -1) + m * jnp.sum(v * v, -1) + 2.0 * jnp.sum(ms * jnp.cross(v, w), -1))
 
@@ -50,7 +42,7 @@ def potential_energy(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Array
     """Gravity potential, eq. (15): ``U = -sum_j g^T (m_j P_j + A_j MS_j)`` with world gravity ``g``, plus the
     joint springs' ``1/2 sum K d(q)^2`` when the model has ``stiffness`` and the soft limits' when it has ``limits``."""
     rot, pos = link_poses(model, q)
-    m, ms, _ = split_params(model.inertia)
+    m, ms, _ = unpack_params(model.inertia)
     first_moment = m[:, None] * pos + (rot @ ms[..., None])[..., 0]
     u = -jnp.sum(first_moment @ model.gravity)
     if model.stiffness is not None:

@@ -44,7 +44,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ..errors import InertiaError, ModelError
-from ..inertia import check_inertia
+from ..inertia import check_inertia, com_params, unpack_params
 from ..spatial import quaternion_to_matrix
 
 __all__ = ["TreeModel", "REVOLUTE", "PRISMATIC", "FREE", "BALL", "JOINT_KINDS"]
@@ -100,12 +100,10 @@ def origin_params_check(params, name: str) -> None:
         raise InertiaError(f"{name}: inertial parameters contain NaN or inf: {p.tolist()}")
     if not np.any(p):
         return
-    m = p[0]
+    m, _, j = unpack_params(p)
     if not m > 0:
         raise InertiaError(f"{name}: mass must be positive, got {m!r}")
-    c = p[1:4] / m
-    j = np.array([[p[4], p[5], p[6]], [p[5], p[7], p[8]], [p[6], p[8], p[9]]])
-    i_com = j - m * (c @ c * np.eye(3) - np.outer(c, c))
+    m, c, i_com = com_params(p)
     # the shift to the centre of mass cancels terms of size |J| + m |c|^2: allow its rounding (a point-like link far
     # from its joint is otherwise judged on round-off, e.g. iCub's 1.3 kg shank with a 1e-18 tensor)
     rounding = 16 * np.finfo(float).eps * (abs(float(np.trace(j))) + m * float(c @ c))
