@@ -1,5 +1,5 @@
 """MuJoCo C driven as its engineers drive it: ``mujoco.rollout`` (the native loop, no Python per step), per-stage
-forces as compiled C callbacks (:mod:`particlesim.io.mjcb`) or MuJoCo elements, ``nthread`` 0 (the calling thread)
+forces as compiled C callbacks (:mod:`particlesim.twins.callbacks`) or MuJoCo elements, ``nthread`` 0 (the calling thread)
 or more, one model per batch member when parameters differ.
 
 :class:`Rollout` times only the native call; turning its states into observations (kinematics at the save times)

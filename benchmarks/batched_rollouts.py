@@ -38,7 +38,7 @@ import numpy as np
 
 from particlesim.batch import param_axes, sharded_vmap
 from particlesim.data import data_dir
-from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
+from particlesim.twins.urdf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
 from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf

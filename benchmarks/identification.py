@@ -1,7 +1,7 @@
 """Identification of Krang's real left arm: ours beside MuJoCo's own ``mujoco.sysid``, same data, model and loss.
 
 Data: ``krang/arm_hardware`` (train and test runs, the lab's row alignment; :func:`particlesim.identify.load_arm_run`).
-Model: ``krang_single_arm_2018.urdf``, 7 joints; for MuJoCo its twin ``particlesim.io.mjcf.mujoco_spec`` (the same
+Model: ``krang_single_arm_2018.urdf``, 7 joints; for MuJoCo its twin ``particlesim.twins.urdf.mujoco_spec`` (the same
 rigid tree: inverse dynamics agree to round-off, checked below before anything is timed).
 
 Both tools fit the same thing: joint torque ``tau = ID(q, qd, qdd; bodies) + I_a qdd + Fv qd + Fc tanh(qd / eps)``
@@ -51,7 +51,7 @@ from particlesim.identify import (
     fit_consistent, identifiable_basis, load_arm_run, ordinary_least_squares, params_from_pseudo_inertia, params_from_theta,
     pseudo_inertia, regressor, rigid_regressor, theta_from_params,
 )
-from particlesim.io.mjcf import mujoco_spec
+from particlesim.twins.urdf import mujoco_spec
 from particlesim.reports.identify_arm import EPS_GRID, select_friction_model
 from particlesim.tree import inverse_dynamics
 from particlesim.io import load_urdf

@@ -27,7 +27,7 @@ import numpy as np
 from particlesim.data import data_dir
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
-from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
+from particlesim.twins.urdf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
 from particlesim.simulate import simulate
 
 from ._common import RESULTS, environment, median_time, timed

@@ -32,12 +32,12 @@ import mujoco
 import numpy as np
 
 from particlesim.batch import sharded_vmap
-from particlesim.io import mjcb
+from particlesim.twins import callbacks as mjcb
 from particlesim.mechanism import simulate_mechanism
 from particlesim.scenes import quarter_car as qc
 from particlesim.scenes.chains import chain_geometry, chain_mechanism
 from particlesim.scenes.nikravesh import aa_mechanism
-from particlesim.scenes.quarter_car_twin import twin_xml
+from particlesim.twins.quarter_car import twin_xml
 
 from ._common import RESULTS, environment
 from ._native import Rollout, initial_state

@@ -1,6 +1,6 @@
 """Cost of one acceleration evaluation along serial chains: the O(N) tip-to-base recursion against the dense
 saddle-point solve, N = 2 .. 64, spherical and revolute joints, side by side with MuJoCo C's ``mj_forward`` on the
-same chain (:func:`particlesim.scenes.chains.chain_mjcf`; one call from Python, which includes MuJoCo's own
+same chain (:func:`particlesim.twins.chains.chain_mjcf`; one call from Python, which includes MuJoCo's own
 dispatch of a few hundred ns). Log-log slopes over the larger N.
 
 Each evaluation is timed inside a compiled ``lax.fori_loop`` of ``REPEATS`` evaluations (no dispatch), median of
@@ -20,7 +20,8 @@ import numpy as np
 
 import particlesim  # noqa: F401  (float64)
 from particlesim.mechanism import accelerations, chain_accelerations, chain_plan, mass_properties, project
-from particlesim.scenes.chains import chain_geometry, chain_mechanism, chain_mjcf
+from particlesim.scenes.chains import chain_geometry, chain_mechanism
+from particlesim.twins.chains import chain_mjcf
 
 from ._common import RESULTS, environment, median_time, timed
 

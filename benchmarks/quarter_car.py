@@ -5,9 +5,9 @@ Error = |chassis z - reference| (m) at 3 s (final) and over 301 save times (traj
 ours (Dopri8, rtol 1e-12, atol 1e-14). Ours: Bosh3, Tsit5, Dopri5, Dopri8 and Kvaerno5 over a sweep of rtol
 (atol = rtol / 100), each solver compiled once (tolerances are traced arguments; compile reported separately; the
 Dopri8 compile also gives the reference). MuJoCo C twin
-(:func:`particlesim.scenes.quarter_car_twin.twin_rollout`: RK4, tyre in a passive callback at every stage) over a
+(:func:`particlesim.twins.quarter_car.twin_rollout`: RK4, tyre in a passive callback at every stage) over a
 sweep of fixed steps; its loops are soft, with the ``solref`` time constant clamped to >= 2 dt, so the error has a
-floor set by the loop compliance at that step. MJX twin (:func:`benchmarks._mjx_twins.quarter_car_rollout`: our
+floor set by the loop compliance at that step. MJX twin (:func:`particlesim.twins.mjx.quarter_car_rollout`: our
 RK4 loop, tyre per stage) at two steps, one compile. Run: ``python -m benchmarks.quarter_car``.
 """
 
@@ -24,13 +24,13 @@ from mujoco import mjx
 
 from particlesim.mechanism import simulate_mechanism
 from particlesim.scenes import quarter_car as qc
-from particlesim.io import mjcb
-from particlesim.scenes.quarter_car_twin import SOLREF_TC, twin_xml
+from particlesim.twins import callbacks as mjcb
+from particlesim.twins.quarter_car import SOLREF_TC, twin_xml
 
 from . import _wp
 from ._common import timed
 from ._native import Rollout, initial_state
-from ._mjx_twins import quarter_car_rollout
+from particlesim.twins.mjx import quarter_car_rollout
 
 NAME = "quarter_car"
 T_END = 3.0
@@ -120,7 +120,7 @@ def run() -> dict:
         "Ours: `simulate_mechanism` as a user calls it (compile cached per structure and settings, listed "
         "separately, not in the ratios), timed saving the end state, the error over the run from the same settings "
         "saving 301 states. MuJoCo C: its native loop (`mujoco.rollout`, calling thread) with the tyre as a "
-        "compiled C `mjcb_passive` (particlesim.io.mjcb), its step swept from coarse to fine; the ratio uses its "
+        "compiled C `mjcb_passive` (particlesim.twins.callbacks), its step swept from coarse to fine; the ratio uses its "
         "time interpolated (log-log) to exactly the target error.",
         "The step here is bounded by stability (the tyre on the wheel mass, ~70 rad/s), not accuracy: with the "
         "default step-size controller (PI 0.4, 1.0) a quarter of the explicit steps are rejected and step counts "

@@ -1,6 +1,6 @@
 """Work against precision for the IFToMM A02 N-four-bar (N = 40, 81 links, 20 s through 20 flat singular
 positions), float64, CPU: ours (least-squares multipliers) against its MuJoCo C twin
-(:mod:`particlesim.scenes.four_bar_twin`).
+(:mod:`particlesim.twins.four_bar`).
 
 Error = the largest error of B0 (x, y) over 401 saves against the one-coordinate model of the parallelogram
 motion (SciPy DOP853 at 1e-13; it reproduces the spec's derived period and passage figures, tested). Target 1e-3 m,
@@ -23,7 +23,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from particlesim.mechanism import simulate_mechanism
-from particlesim.scenes.four_bar_twin import b0_observer, twin_model
+from particlesim.twins.four_bar import b0_observer, twin_model
 from particlesim.scenes.iftomm import A02, a02_four_bar, a02_reduced
 
 from . import _wp

@@ -1,5 +1,5 @@
 """Work against precision for Andrews' squeezing mechanism (IFToMM A03), 0–0.03 s (float64, CPU): ours against
-its MuJoCo C twin (:mod:`particlesim.scenes.andrews_twin`).
+its MuJoCo C twin (:mod:`particlesim.twins.andrews`).
 
 Error = the largest relative error of the seven joint angles at 0.03 s against the published 16-digit reference
 (PSIDE, rtol = atol = 1e-14; ours at Dopri8 rtol 1e-13 lies 3e-10 from it). Only the end state is published, so
@@ -25,7 +25,7 @@ import numpy as np
 
 from particlesim.mechanism import simulate_mechanism
 from particlesim.scenes import andrews as an
-from particlesim.scenes.andrews_twin import twin_xml
+from particlesim.twins.andrews import twin_xml
 
 from . import _wp
 from ._native import Rollout, initial_state

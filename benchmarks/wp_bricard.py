@@ -1,5 +1,5 @@
 """Work against precision for Bricard's linkage (IFToMM A04, a redundant constraint), 0–10 s from rest (float64,
-CPU): ours (least-squares multipliers) against its MuJoCo C twin (:mod:`particlesim.scenes.bricard_twin`).
+CPU): ours (least-squares multipliers) against its MuJoCo C twin (:mod:`particlesim.twins.bricard`).
 
 Error = the largest distance error of P3 over 101 saves (every 0.1 s) against a reference: the benchmark's data
 file is not readable here, so the reference is ours at Dopri8 rtol = atol = 1e-13. The twin converges to it as
@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 from particlesim.mechanism import simulate_mechanism
-from particlesim.scenes.bricard_twin import twin_xml
+from particlesim.twins.bricard import twin_xml
 from particlesim.scenes.iftomm import A04, a04_bricard
 
 from . import _wp

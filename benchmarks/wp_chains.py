@@ -1,6 +1,6 @@
 """Work against precision for 2 s of two pendulum chains released from rest (float64, CPU): a revolute chain of
 N = 4 links and a spherical chain of N = 3 (:mod:`particlesim.scenes.chains`), ours against their MuJoCo C and MJX
-twins (:func:`particlesim.scenes.chains.chain_mjcf`).
+twins (:func:`particlesim.twins.chains.chain_mjcf`).
 
 Error = max over the free particles (the MJCF sites at the same material points) and the three coordinates of
 |x - x_ref| (m), at 2 s (final) and over the 101 save times (trajectory); reference: ours, Dopri8, rtol 1e-13,
@@ -10,7 +10,7 @@ atol 1e-15, dense solve. Rows:
   saddle-point solve (Tsit5, Dopri5, Dopri8, Kvaerno5) and with the O(N) tip-to-base recursion
   (``solve="chain"``: Tsit5), over a sweep of rtol (atol = rtol / 100), one compile per solver and solve;
 * MuJoCo C RK4 over a sweep of fixed steps (``mj_step`` in a Python loop);
-* MJX RK4 (``mjx.step`` in a jitted scan, :func:`benchmarks._mjx_twins.chain_rollout`), one compile per chain.
+* MJX RK4 (``mjx.step`` in a jitted scan, :func:`particlesim.twins.mjx.chain_rollout`), one compile per chain.
 
 Writes ``results/wp_chains_revolute.*`` and ``results/wp_chains_spherical.*`` (JSON/CSV/PNG per chain) and
 ``results/wp_chains.json`` (both, for ``run_all``). Run: ``python -m benchmarks.wp_chains``.
@@ -29,11 +29,12 @@ import numpy as np
 from mujoco import mjx
 
 from particlesim.mechanism import simulate_mechanism
-from particlesim.scenes.chains import chain_geometry, chain_mechanism, chain_mjcf
+from particlesim.scenes.chains import chain_geometry, chain_mechanism
+from particlesim.twins.chains import chain_mjcf
 
 from . import _wp
 from ._common import RESULTS, timed
-from ._mjx_twins import chain_rollout
+from particlesim.twins.mjx import chain_rollout
 from ._native import Rollout, initial_state
 
 NAME = "wp_chains"
@@ -114,7 +115,7 @@ def run_chain(joint: str, n: int) -> dict:
              "steps. Steps coarser than the 20 ms save grid are judged on the final state only."]
     if joint == "spherical":
         notes.append("MJX 3.17's RK4 is second order on ball joints (it advances the quaternion by body-frame stage "
-                     "velocities without the dexp correction; tests/mechanism/test_mjx_twins.py measures the error "
+                     "velocities without the dexp correction; tests/twins/test_mjx_twins.py measures the error "
                      "falling 4× per halving), so its error falls slowly with the step; MuJoCo C's RK4 stays fourth "
                      "order.")
     res = _wp.finish(f"{NAME}_{joint}", f"{joint.capitalize()} chain, N = {n}, released from rest", T_END, TARGET,

@@ -1,5 +1,5 @@
 """Work against precision for the flyball governor (IFToMM A05, stiff spring-dampers), 0–10 s (float64, CPU):
-ours against its MuJoCo C twin (:mod:`particlesim.scenes.flyball_twin`).
+ours against its MuJoCo C twin (:mod:`particlesim.twins.flyball`).
 
 Error = the largest error of the slider height s over 101 saves (every 0.1 s) against ours at Dopri8 rtol = atol
 = 1e-12 (no published trajectory is readable). The twin is a tree with tendon springs (no soft loop), so it
@@ -24,7 +24,7 @@ import mujoco
 import numpy as np
 
 from particlesim.mechanism import simulate_mechanism
-from particlesim.scenes.flyball_twin import twin_xml
+from particlesim.twins.flyball import twin_xml
 from particlesim.scenes.iftomm import A05, a05_flyball, flyball_slider_height
 
 from . import _wp

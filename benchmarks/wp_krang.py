@@ -1,5 +1,5 @@
 """Work against precision for 2 s of the fixed-wheel Krang (18 joints) under gravity and a smooth torque input on
-both arms (float64, CPU): ours against its MuJoCo C and MJX twins (:mod:`particlesim.io.mjcf`).
+both arms (float64, CPU): ours against its MuJoCo C and MJX twins (:mod:`particlesim.twins.urdf`).
 
 Scene (:func:`scene`): ``krang_fixed_wheel_2018-04.urdf``, gravity (0, -9.81, 0), viscous friction ``FV`` on every
 joint (MuJoCo's joint damping, the same law; without it the 2 s fall is chaotic: Bosh3 at rtol 1e-7 ended 15 rad
@@ -13,13 +13,13 @@ the reference from ours (Dopri8, rtol 1e-13, atol 1e-15). Rows:
   (evaluated at every stage), Bosh3, Tsit5, Dopri5, Dopri8, Kvaerno3, Kvaerno5 over a sweep of rtol
   (atol = rtol / 100); one compile per solver (tolerances traced), compile time listed separately;
 * MuJoCo C twin, RK4 through ``mujoco.rollout`` over a sweep of fixed steps, the torque a compiled C
-  ``mjcb_passive`` (:func:`particlesim.io.mjcb.install_sine_torques`); and, labelled, the same twin driven from
+  ``mjcb_passive`` (:func:`particlesim.twins.callbacks.install_sine_torques`); and, labelled, the same twin driven from
   Python (``mj_step`` loop) with the torque added to ``qfrc_passive`` by a Python ``mjcb_passive`` at
   every RK4 stage at the stage time ``d.time`` (a torque held over a step would be first order, MUJOCO-TWINS.md;
-  tests/test_krang_torque_twin.py measures fourth-order convergence), and Euler and implicitfast (first order)
+  tests/twins/test_krang_torque_twin.py measures fourth-order convergence), and Euler and implicitfast (first order)
   over a short sweep, all three labelled "Python loop, Python callback"; the interpreter cost of that callback is
   measured separately (a no-op callback against none) in ``callback_overhead``;
-* MJX twin: :func:`benchmarks._mjx_twins.forced_rk4_rollout` (MuJoCo's RK4 tableau around ``mjx.forward``, torque
+* MJX twin: :func:`particlesim.twins.mjx.forced_rk4_rollout` (MuJoCo's RK4 tableau around ``mjx.forward``, torque
   per stage in ``qfrc_applied``), jitted once, the MJX model an argument so other steps do not recompile.
 
 Run: ``python -m benchmarks.wp_krang``. Writes ``benchmarks/results/wp_krang.{json,csv,png}``.
@@ -36,14 +36,14 @@ import mujoco
 import numpy as np
 
 from particlesim.data import data_dir
-from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model
+from particlesim.twins.urdf import JointMap, mjx_model, mujoco_model
 from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
 
 from . import _wp
 from ._common import median_time, timed
-from ._mjx_twins import forced_rk4_rollout
+from particlesim.twins.mjx import forced_rk4_rollout
 
 NAME = "wp_krang"
 URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
@@ -137,8 +137,8 @@ def mujoco_c_rollout(m, jm: JointMap, q0, qd0, torque_args, ts=TS, *, callback: 
 
 def c_native_rows(jm: JointMap, q0, qd0, torque_args, errors) -> list[dict]:
     """MuJoCo C RK4 through its native loop (``mujoco.rollout``) with the torque as a compiled ``mjcb_passive``
-    evaluated at every stage at the stage time (:func:`particlesim.io.mjcb.install_sine_torques`)."""
-    from particlesim.io import mjcb
+    evaluated at every stage at the stage time (:func:`particlesim.twins.callbacks.install_sine_torques`)."""
+    from particlesim.twins import callbacks as mjcb
 
     from ._native import Rollout, initial_state
 
@@ -213,9 +213,9 @@ def run() -> dict:
     notes = [
         f"Torque input: {len(ARMS)} arm joints, tau_j = A_j sin(w_j t + phi_j), A 2-5 N m (wrists 0.3-0.75 N m), 0.5-2 Hz, evaluated at "
         "every stage by every method (MuJoCo C through `mjcb_passive` at the stage time `d.time`; its RK4 converges "
-        "at fourth order, tests/test_krang_torque_twin.py).",
+        "at fourth order, tests/twins/test_krang_torque_twin.py).",
         "MuJoCo C's headline row runs its native loop (`mujoco.rollout`, calling thread) with the torque as a "
-        "compiled C `mjcb_passive` (particlesim.io.mjcb); its step is swept from too coarse to fine and its time "
+        "compiled C `mjcb_passive` (particlesim.twins.callbacks); its step is swept from too coarse to fine and its time "
         "interpolated to the target. The rows labelled 'Python loop, Python callback' drive `mj_step` from Python "
         f"with the torque in a Python callback (kept for comparison): at dt 5e-4 ({overhead['steps']} RK4 steps) no "
         f"callback {_wp.fmt_time(cost['none'])}, a no-op callback {_wp.fmt_time(cost['noop'])}, the torque "

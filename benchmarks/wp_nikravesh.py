@@ -1,5 +1,5 @@
 """Work against precision for 2 s of Nikravesh's planar double A-arm (float64, CPU): ours against its MuJoCo C and
-MJX twins (:mod:`particlesim.scenes.nikravesh_twin`).
+MJX twins (:mod:`particlesim.twins.nikravesh`).
 
 Error = the wheel-assembly CoM height y2 (the quantity of ``AA_results.csv``) against ours (Dopri8, rtol 1e-12,
 atol 1e-14), sampled every 10 ms: at 2 s (final state) and the largest over the run. The AA settles well before
@@ -28,9 +28,9 @@ import numpy as np
 
 from particlesim.mechanism import simulate_mechanism
 from particlesim.scenes import nikravesh as nk
-from particlesim.scenes.nikravesh_twin import mjx_rollout, solref_tc, twin_xml
+from particlesim.twins.nikravesh import mjx_rollout, solref_tc, twin_xml
 
-from particlesim.io import mjcb
+from particlesim.twins import callbacks as mjcb
 
 from . import _wp
 from ._common import timed
@@ -75,7 +75,7 @@ def _tyre(m):
 
 def _c_rows(errors) -> list[dict]:
     """MuJoCo C through ``mujoco.rollout`` on the calling thread, the tyre as a compiled ``mjcb_passive``."""
-    from particlesim.scenes.nikravesh_twin import _loop_residual
+    from particlesim.twins.nikravesh import _loop_residual
 
     rows = []
     save_dt = TS[1] - TS[0]
@@ -173,7 +173,7 @@ def run() -> dict:
         f"Reference: ours Dopri8 rtol {REF_RTOL:g} atol {REF_RTOL * 1e-2:g} ({int(ref_steps)} steps); it lies "
         f"{file_dist:.1e} m from `AA_results.csv` (MATLAB ode45, RelTol 1e-6) at the same samples.",
         f"MuJoCo C runs in its native loop (`mujoco.rollout`, calling thread) with the tyre as a compiled C "
-        f"`mjcb_passive` (particlesim.io.mjcb): {cost['with_c_callback_us']:.1f} µs per RK4 step, "
+        f"`mjcb_passive` (particlesim.twins.callbacks): {cost['with_c_callback_us']:.1f} µs per RK4 step, "
         f"{cost['without_callback_us']:.1f} µs without the tyre (cost only). Its step is swept from coarse to fine; "
         "the ratios use its time interpolated (log-log) to exactly the target error. Ours: `simulate_mechanism` "
         "as a user calls it (compile cached per structure, listed separately), timed saving the end state, the "

@@ -89,7 +89,7 @@ CELLS = [
     ),
     new_markdown_cell(
         "Friction dissipates energy: without it (and without the PD hold) the same tree conserves $T+V$ to "
-        "~1e-12 relative over 5 s at tight tolerances (see `tests/test_mujoco_twin.py`), and matches MuJoCo C's "
+        "~1e-12 relative over 5 s at tight tolerances (see `tests/twins/test_krang_twin.py`), and matches MuJoCo C's "
         "RK4 twin within RK4's own error."
     ),
 ]

@@ -34,7 +34,7 @@ def test_quarter_car_bodies_match_table_1():
 
 
 # The report's Krang fall against MuJoCo C RK4 (dt = 1e-4): measured 3e-10 rad over 2 s; RK4's own global error
-# at this step is of that order (see tests/test_mujoco_twin.py for the step-halving estimate). A twin that
+# at this step is of that order (see tests/twins/test_krang_twin.py for the step-halving estimate). A twin that
 # disagreed on any dynamics term would be off by orders of magnitude more.
 KRANG_REPORT_ATOL = 1e-8
 

@@ -39,7 +39,7 @@ def _initial_pose(n: int) -> np.ndarray:
 def _mujoco_rollout(urdf: Path, names, q0, ts):
     import mujoco
 
-    from ..io.mjcf import JointMap, mujoco_model
+    from ..twins.urdf import JointMap, mujoco_model
 
     m = mujoco_model(urdf, gravity=(0.0, -9.81, 0.0), timestep=MJ_DT, integrator="rk4", damping=FV)
     jmap = JointMap(m, names)

@@ -1,4 +1,5 @@
-"""Pendulum chains of N box links, joined by revolute or spherical joints, as particle mechanisms and MJCF twins.
+"""Pendulum chains of N box links, joined by revolute or spherical joints, as particle mechanisms
+(their MuJoCo twins: :mod:`particlesim.twins.chains`).
 
 Geometry (one description feeds both): link ``j`` has its frame at joint ``j`` (world pose ``(R_j, p_j)`` at
 assembly) and extends a length ``L`` along its local ``-z``; joint ``j + 1`` sits at ``p_j + R_j (0, 0, -L)``.
@@ -20,7 +21,7 @@ from ..inertia import RigidInertia
 from ..mechanism import MechanismBuilder
 from ..spatial import rpy_to_matrix
 
-__all__ = ["ChainGeometry", "chain_geometry", "chain_mechanism", "chain_mjcf", "LINK"]
+__all__ = ["ChainGeometry", "chain_geometry", "chain_mechanism", "LINK"]
 
 LINK = {"mass": 1.0, "length": 0.5, "a": 0.08, "b": 0.05, "axis_half": 0.05}
 _AXES = (np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0]))
@@ -92,39 +93,3 @@ def chain_mechanism(g: ChainGeometry, gravity=(0.0, 0.0, -9.81)):
         mb.body(f"link{j + 1}", _box(), prims[j], pose=(g.rotations[j], g.origins[j]), on_negative="ignore")
     dof = (3 if g.joint == "spherical" else 1) * g.n
     return mb.build(dof=dof)
-
-
-def chain_mjcf(g: ChainGeometry, *, timestep: float = 1e-4, gravity=(0.0, 0.0, -9.81)) -> tuple[str, list[str]]:
-    """MJCF text of the same chain (nested bodies at their assembly poses, qpos = 0 there) with a site at every
-    particle; returns the XML and the particle names in site order."""
-    parts, _ = _particles(g)
-    m, a, b, ell = LINK["mass"], LINK["a"], LINK["b"], LINK["length"]
-    diag = m / 12 * np.array([b**2 + ell**2, a**2 + ell**2, a**2 + b**2])
-
-    def quat(rm):
-        from scipy.spatial.transform import Rotation
-
-        x, y, z, w_ = Rotation.from_matrix(rm).as_quat()
-        return f"{w_:.17g} {x:.17g} {y:.17g} {z:.17g}"
-
-    def vec(v):
-        return " ".join(f"{c:.17g}" for c in v)
-
-    site_names = []
-    xml = [f'<mujoco><option gravity="{vec(gravity)}" timestep="{timestep}" integrator="RK4">'
-           '<flag contact="disable"/></option><worldbody>']
-    for j in range(g.n):
-        if j == 0:
-            pos, rel = g.origins[0], g.rotations[0]
-        else:
-            pos, rel = np.array([0.0, 0.0, -ell]), g.rotations[j - 1].T @ g.rotations[j]
-        jt = ('<joint type="ball"/>' if g.joint == "spherical" else f'<joint type="hinge" axis="{vec(g.axes[j])}"/>')
-        xml.append(f'<body name="link{j + 1}" pos="{vec(pos)}" quat="{quat(rel)}">{jt}'
-                   f'<inertial pos="0 0 {-ell / 2:.17g}" mass="{m}" diaginertia="{vec(diag)}"/>')
-        for nm, (x, owner) in parts.items():
-            if owner == j:
-                local = g.rotations[j].T @ (x - g.origins[j])
-                xml.append(f'<site name="{nm}" pos="{vec(local)}"/>')
-                site_names.append(nm)
-    xml.append("</body>" * g.n + "</worldbody></mujoco>")
-    return "".join(xml), site_names

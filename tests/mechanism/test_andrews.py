@@ -64,7 +64,7 @@ TWIN_ANGLE_RTOL = 2e-6
 
 @pytest.mark.slow
 def test_mujoco_twin_converges_to_the_reference(run):
-    from particlesim.scenes.andrews_twin import twin_rollout
+    from particlesim.twins.andrews import twin_rollout
 
     _, _, q_ours, _ = run
     errs = []

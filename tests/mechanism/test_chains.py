@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from particlesim.mechanism import residuals, simulate_mechanism
-from particlesim.scenes.chains import chain_geometry, chain_mechanism, chain_mjcf
+from particlesim.scenes.chains import chain_geometry, chain_mechanism
+from particlesim.twins.chains import chain_mjcf
 
 T_END = 10.0
 TS = np.linspace(0.0, T_END, 21)

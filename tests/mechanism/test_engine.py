@@ -4,8 +4,7 @@ The reference here shares nothing with :mod:`particlesim.mechanism._algebra` but
 and ``gamma`` come from forward-mode differentiation of :func:`~particlesim.mechanism.constraints`, its mass matrix
 from :meth:`Mechanism.mass_matrix` (the bodies' particle masses), its forces from
 :func:`~particlesim.mechanism.generalized_forces`, and the system ``[[M, J^T], [J, 0]]`` is solved by LU. Also: the
-saddle-point fallback (for singular mass matrices) agrees with both, and the compiled MuJoCo tyre callback used by
-the benchmarks equals the Python one.
+saddle-point fallback (for singular mass matrices) agrees with both.
 """
 
 import dataclasses
@@ -87,37 +86,3 @@ def test_projection_reaches_round_off_from_a_step_sized_error(name):
     pos, vel = residuals(mech, xp, xdp)
     assert float(jnp.abs(pos).max()) <= POS_ATOL
     assert float(jnp.abs(vel).max()) <= VEL_RTOL * max(float(jnp.abs(xd).max()), 1.0)
-
-
-def test_compiled_tyre_callback_equals_python_callback():
-    """The quarter-car MuJoCo C twin with its tyre as a compiled ``mjcb_passive`` (benchmarks, ``mujoco.rollout``)
-    against the same twin with the Python callback of :mod:`particlesim.scenes.quarter_car_twin`."""
-    mujoco = pytest.importorskip("mujoco")
-    from mujoco import rollout
-
-    from particlesim.io import mjcb
-    from particlesim.scenes import quarter_car as qc
-    from particlesim.scenes.quarter_car_twin import twin_rollout, twin_xml
-
-    dt, ts = 1e-3, np.linspace(0.0, 0.5, 6)
-    python = twin_rollout(ts, dt)["chassis_z"]
-    m = mujoco.MjModel.from_xml_string(twin_xml(dt))
-    d = mujoco.MjData(m)
-    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "centre")
-    mjcb.install_tyres([(site, (0, 0, 1), float(qc._p(10)[2]) - qc.TYRE["radius"], qc.TYRE["radius"],
-                         qc.TYRE["stiffness"], qc.TYRE["damping"])])
-    try:
-        mujoco.mj_forward(m, d)
-        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-        state0 = np.zeros((1, mujoco.mj_stateSize(m, spec)))
-        mujoco.mj_getState(m, d, state0[0], spec)
-        states, _ = rollout.Rollout(nthread=1).rollout(m, d, state0, nstep=500)
-    finally:
-        mjcb.uninstall()
-    chassis = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "chassis")
-    native = []
-    for k in (0, 100, 200, 300, 400, 500):
-        d.qpos[:] = state0[0, 1:1 + m.nq] if k == 0 else states[0, k - 1, 1:1 + m.nq]
-        mujoco.mj_kinematics(m, d)
-        native.append(d.xpos[chassis, 2])
-    np.testing.assert_allclose(native, python, rtol=0, atol=1e-12)

@@ -112,7 +112,7 @@ def test_a04_energy_and_loop(a04):
 
 
 def test_a04_against_the_mujoco_twin(a04):
-    from particlesim.scenes.bricard_twin import twin_rollout
+    from particlesim.twins.bricard import twin_rollout
 
     mech, ts, sol = a04
     ours = np.asarray(sol.q[:, mech.free_slice("P3")])
@@ -162,7 +162,7 @@ def test_a02_mujoco_twin_approaches_the_parallelogram_motion():
     error against the one-coordinate model falls as its step is refined (about linearly: soft loops)."""
     import mujoco
 
-    from particlesim.scenes.four_bar_twin import b0_observer, twin_model
+    from particlesim.twins.four_bar import b0_observer, twin_model
 
     n, t_end = 2, 2.0
     ts = np.linspace(0.0, t_end, 41)

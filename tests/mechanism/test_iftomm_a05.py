@@ -52,7 +52,7 @@ def test_momentum_energy_and_residuals(run):
 
 @pytest.mark.slow
 def test_slider_against_the_mujoco_twin(run):
-    from particlesim.scenes.flyball_twin import twin_rollout
+    from particlesim.twins.flyball import twin_rollout
 
     mech, ts, sol = run
     s = np.asarray(flyball_slider_height(mech, sol.q))

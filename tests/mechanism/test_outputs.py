@@ -13,7 +13,8 @@ from particlesim.errors import ModelError
 from particlesim.inertia import RigidInertia
 from particlesim.mechanism import (MechanismBuilder, body_com_positions, body_poses, body_velocities,
                                    simulate_mechanism)
-from particlesim.scenes.chains import chain_geometry, chain_mechanism, chain_mjcf
+from particlesim.scenes.chains import chain_geometry, chain_mechanism
+from particlesim.twins.chains import chain_mjcf
 
 #: Poses and velocities under an exact rigid motion (round-off of a 4x4 solve) [m, -, m/s, rad/s].
 RIGID_TOL = 1e-12

@@ -8,7 +8,7 @@ import pytest
 from particlesim.mechanism import constraints, generalized_forces, residuals, simulate_mechanism
 from particlesim.mechanism.constraints import constraint_jacobian
 from particlesim.scenes import quarter_car as qc
-from particlesim.scenes.quarter_car_twin import twin_rollout
+from particlesim.twins.quarter_car import twin_rollout
 
 T_END = 3.0
 TS = np.linspace(0.0, T_END, 301)

@@ -12,8 +12,8 @@ import pytest
 from particlesim.errors import ParseError
 from particlesim.simulate import simulate
 from particlesim.io import from_mujoco_state, load_mjcf, load_urdf
-from particlesim.io.mjcf import mujoco_model
-from particlesim.io.mjcf_load import UnmodelledElementsWarning, joint_ids
+from particlesim.twins.urdf import mujoco_model
+from particlesim.io.mjcf import UnmodelledElementsWarning, joint_ids
 from particlesim.tree import (bias_forces, forward_dynamics, friction_torques, link_jacobian, link_poses, mass_matrix,
                               spring_torques)
 from tree_helpers import max_rel

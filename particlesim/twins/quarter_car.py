@@ -16,7 +16,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from . import quarter_car as qc
+from ..scenes import quarter_car as qc
+from .callbacks import python_tyre
 
 __all__ = ["twin_xml", "twin_rollout", "SOLREF_TC"]
 
@@ -83,23 +84,6 @@ def twin_xml(timestep: float = 1e-4) -> str:
 </mujoco>"""
 
 
-def _tyre_callback(site: int, ground: float):
-    jacp = np.zeros((3, 0))
-
-    def cb(m, d):
-        nonlocal jacp
-        if jacp.shape[1] != m.nv:
-            jacp = np.zeros((3, m.nv))
-        mujoco.mj_jacSite(m, d, jacp, None, site)
-        z = d.site_xpos[site, 2]
-        vz = jacp[2] @ d.qvel
-        dist = z - ground - qc.TYRE["radius"]
-        if dist < 0.0:
-            d.qfrc_passive[:] += jacp[2] * (-(qc.TYRE["stiffness"] * dist + qc.TYRE["damping"] * vz))
-
-    return cb
-
-
 def twin_rollout(ts: np.ndarray, timestep: float = 1e-4) -> dict[str, np.ndarray]:
     """Run the twin from rest with MuJoCo C RK4; return chassis-centre z, wheel-centre z and loop residuals at
     ``ts`` (a uniform grid whose spacing is a multiple of ``timestep``)."""
@@ -107,7 +91,8 @@ def twin_rollout(ts: np.ndarray, timestep: float = 1e-4) -> dict[str, np.ndarray
     d = mujoco.MjData(m)
     site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "centre")
     ground = float(qc._p(10)[2]) - qc.TYRE["radius"]
-    mujoco.set_mjcb_passive(_tyre_callback(site, ground))
+    mujoco.set_mjcb_passive(python_tyre(site, (0.0, 0.0, 1.0), ground, qc.TYRE["radius"], qc.TYRE["stiffness"],
+                                          qc.TYRE["damping"]))
     try:
         mujoco.mj_forward(m, d)
         per = int(round((ts[1] - ts[0]) / timestep))

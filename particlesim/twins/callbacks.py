@@ -1,5 +1,5 @@
-"""Compiled MuJoCo passive-force callbacks for the C twins, evaluated at every RK4 stage: the one-sided tyre and
-sinusoidal joint torques.
+"""MuJoCo passive-force callbacks for the C twins, evaluated at every RK4 stage: the one-sided tyre (compiled, and
+as a labelled Python reference :func:`python_tyre`) and sinusoidal joint torques (compiled).
 
 MuJoCo has no element for a one-sided spring-damper, so the twins of the quarter car and of Nikravesh's double
 A-arm add it in ``mjcb_passive``. A Python callback costs interpreter time per stage and cannot run on the worker
@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 
 __all__ = ["MAX_TYRES", "MAX_DOF", "set_tyres", "install_tyres", "install_sine_torques", "uninstall", "compiled_library",
-           "tyre_numeric"]
+           "tyre_numeric", "python_tyre"]
 
 MAX_TYRES = 8
 
@@ -189,3 +189,23 @@ def tyre_numeric(xml: str, stiffness: float, damping: float) -> str:
     if not sep:
         raise ValueError("not an MJCF document: no </mujoco>")
     return head + element + sep + tail
+
+
+def python_tyre(site: int, normal, ground: float, radius: float, stiffness: float, damping: float):
+    """The same tyre law as a Python ``mjcb_passive`` (install with ``mujoco.set_mjcb_passive``): the reference the
+    compiled callback is tested against, and the labelled Python-callback rows of the benchmarks. It costs
+    interpreter time per stage and cannot run on ``mujoco.rollout``'s worker threads."""
+    n = np.asarray(normal, dtype=float)
+    jacp = np.zeros((3, 0))
+
+    def cb(m, d):
+        nonlocal jacp
+        if jacp.shape[1] != m.nv:
+            jacp = np.zeros((3, m.nv))
+        mujoco.mj_jacSite(m, d, jacp, None, site)
+        dist = d.site_xpos[site] @ n - ground - radius
+        if dist < 0.0:
+            jn = n @ jacp
+            d.qfrc_passive[:] += jn * (-(stiffness * dist + damping * (jn @ d.qvel)))
+
+    return cb

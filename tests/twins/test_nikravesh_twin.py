@@ -24,7 +24,7 @@ from mujoco import mjx
 
 from particlesim.mechanism import simulate_mechanism
 from particlesim.scenes import nikravesh as nk
-from particlesim.scenes.nikravesh_twin import mjx_rollout, twin_rollout, twin_xml
+from particlesim.twins.nikravesh import mjx_rollout, twin_rollout, twin_xml
 
 SAFETY = 3.0  # the factor of the other twin tests; nothing here is tuned to the results
 DT = 1e-3  # s, the twins' RK4 step

@@ -1,4 +1,4 @@
-"""Our tree dynamics against its MuJoCo C / MJX twin (``particlesim.io.mjcf``), with Pinocchio as third witness.
+"""Our tree dynamics against its MuJoCo C / MJX twin (``particlesim.twins.urdf``), with Pinocchio as third witness.
 
 Static quantities (A, C q̇ + Q, q̈) must agree to rounding: tolerance 1e-9 relative to the largest entry (measured
 ≈ 4e-16 on Krang). Rollouts agree within the integrators' own error, estimated from step halving (see below).
@@ -14,7 +14,7 @@ import pytest
 
 from particlesim.tree import bias_forces, forward_dynamics, kinetic_energy, mass_matrix, potential_energy
 from particlesim.io import load_urdf
-from particlesim.io.mjcf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
+from particlesim.twins.urdf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
 from particlesim.simulate import simulate
 
 GRAVITY = (0.0, -9.81, 0.0)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from .iftomm import A02
+from ..scenes.iftomm import A02
 
 __all__ = ["twin_xml", "twin_model", "b0_observer"]
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from .iftomm import A05, _prism, _shift
+from ..scenes.iftomm import A05, _prism, _shift
 
 __all__ = ["twin_xml", "twin_rollout"]
 

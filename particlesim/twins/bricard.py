@@ -12,7 +12,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from .iftomm import _BRICARD_AXES, _BRICARD_P, A04, AXIS_OFFSET
+from ..scenes.iftomm import _BRICARD_AXES, _BRICARD_P, A04, AXIS_OFFSET
 
 __all__ = ["twin_xml", "twin_rollout"]
 

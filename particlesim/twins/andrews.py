@@ -17,7 +17,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from . import andrews as an
+from ..scenes import andrews as an
 
 __all__ = ["twin_xml", "twin_rollout"]
 

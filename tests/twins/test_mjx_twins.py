@@ -25,11 +25,12 @@ from mujoco import mjx
 
 from particlesim.mechanism import simulate_mechanism
 from particlesim.scenes import quarter_car as qc
-from particlesim.scenes.chains import chain_geometry, chain_mechanism, chain_mjcf
-from particlesim.scenes.quarter_car_twin import SOLREF_TC, twin_rollout, twin_xml
+from particlesim.scenes.chains import chain_geometry, chain_mechanism
+from particlesim.twins.chains import chain_mjcf
+from particlesim.twins.quarter_car import SOLREF_TC, twin_rollout, twin_xml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root, for ``benchmarks``
-from benchmarks._mjx_twins import chain_rollout, quarter_car_rollout  # noqa: E402
+from particlesim.twins.mjx import chain_rollout, quarter_car_rollout  # noqa: E402
 
 SAFETY = 3.0
 ROUNDOFF_ULPS = 64.0  # per step and coordinate, for the reordered float64 arithmetic of two RK4 implementations

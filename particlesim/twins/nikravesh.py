@@ -17,7 +17,7 @@ gravity -y:
   force held over a step would be first order, MUJOCO-TWINS.md).
 
 MJX 3.17 omits the ``J̇ v`` term of ``connect`` rows, so its loop residual, and with it its wheel height, is looser
-than MuJoCo C's at the same step (measured in ``tests/mechanism/test_nikravesh_twin.py``).
+than MuJoCo C's at the same step (measured in ``tests/twins/test_nikravesh_twin.py``).
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from . import nikravesh as nk
+from ..scenes import nikravesh as nk
+from .callbacks import python_tyre
 
 __all__ = ["twin_xml", "twin_rollout", "mjx_rollout", "solref_tc"]
 
@@ -66,7 +67,7 @@ def twin_xml(timestep: float = 1e-3, integrator: str = "RK4") -> str:
     s1 = np.sin(-p1)
     r2_in_1 = np.array([[c1, -s1, 0.0], [s1, c1, 0.0], [0.0, 0.0, 1.0]]) @ (r2 - r1)
     sol = f'solref="{solref_tc(timestep)!r} 1" solimp="{_SOLIMP}"'
-    s, t = nk.SPRING, nk.TYRE
+    s = nk.SPRING
     return f"""
 <mujoco model="nikravesh planar double A-arm twin">
   <compiler angle="radian" balanceinertia="false" inertiafromgeom="false"/>
@@ -98,23 +99,6 @@ def twin_xml(timestep: float = 1e-3, integrator: str = "RK4") -> str:
 </mujoco>"""
 
 
-def _tyre_callback(site: int):
-    """``mjcb_passive``: the tyre law of MODEL.md on the wheel CoM (site ``G2``), added to ``qfrc_passive``."""
-    jacp = np.zeros((3, 0))
-
-    def cb(m, d):
-        nonlocal jacp
-        if jacp.shape[1] != m.nv:
-            jacp = np.zeros((3, m.nv))
-        mujoco.mj_jacSite(m, d, jacp, None, site)
-        delta = d.site_xpos[site, 1] - nk.TYRE["radius"]
-        if delta < 0.0:
-            vy = jacp[1] @ d.qvel
-            d.qfrc_passive[:] += jacp[1] * (-(nk.TYRE["stiffness"] * delta + nk.TYRE["damping"] * vy))
-
-    return cb
-
-
 def _loop_residual(m, d, b1: int, b2: int) -> float:
     p1 = d.xpos[b1] + d.xmat[b1].reshape(3, 3) @ m.eq_data[0, 0:3]
     p2 = d.xpos[b2] + d.xmat[b2].reshape(3, 3) @ m.eq_data[0, 3:6]
@@ -131,7 +115,8 @@ def twin_rollout(ts: np.ndarray, timestep: float = 1e-3, integrator: str = "RK4"
     b1, b2 = int(m.eq_obj1id[0]), int(m.eq_obj2id[0])
     per = int(round((ts[1] - ts[0]) / timestep)) if len(ts) > 1 else 1
     wheel, loop = np.empty(len(ts)), np.empty(len(ts))
-    mujoco.set_mjcb_passive(_tyre_callback(site))
+    mujoco.set_mjcb_passive(python_tyre(site, (0.0, 1.0, 0.0), 0.0, nk.TYRE["radius"], nk.TYRE["stiffness"],
+                                        nk.TYRE["damping"]))
     try:
         mujoco.mj_forward(m, d)
         for k in range(len(ts)):
@@ -155,7 +140,7 @@ def mjx_rollout(m: mujoco.MjModel, n_save: int):
     import jax.numpy as jnp
     from mujoco import mjx
 
-    from ..io.mjx_rk4 import rk4_rollout, rk4_step
+    from .mjx import rk4_rollout, rk4_step
 
     wb = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "wheel")
     b1, b2 = int(m.eq_obj1id[0]), int(m.eq_obj2id[0])

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from particlesim.io.mjcf import JointMap, mjx_model
+from particlesim.twins.urdf import JointMap, mjx_model
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root, for ``benchmarks``
 from benchmarks import wp_krang  # noqa: E402
@@ -29,7 +29,7 @@ SAFETY = 2.0
 OURS_FLOOR = 1e-9  # rad: Dopri8 at rtol 1e-12 on this scene (its step-halving in tolerance is ~1e-11)
 ORDER4_RATIO = (12.0, 20.0)  # accepted range of e(dt) / e(dt/2) for a fourth-order method (exactly 16 asymptotically)
 ROUNDOFF_ULPS = 64.0  # MJX vs MuJoCo C: same RK4 tableau, reordered float64 arithmetic; per step and coordinate, as
-# in tests/mechanism/test_mjx_twins.py (bound = steps * ROUNDOFF_ULPS * eps * max |q|)
+# in tests/twins/test_mjx_twins.py (bound = steps * ROUNDOFF_ULPS * eps * max |q|)
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +77,7 @@ def test_torque_twin_converges_at_fourth_order_to_ours(krang):
 
 @pytest.mark.slow  # compiling the MJX RK4 loop takes ~20-30 s on this CPU
 def test_mjx_forced_rk4_equals_mujoco_c(krang):
-    from benchmarks._mjx_twins import forced_rk4_rollout
+    from particlesim.twins.mjx import forced_rk4_rollout
 
     model, q0, qd0, targs, ours, jm = krang
     dt = DTS[-1]
@@ -104,7 +104,7 @@ def test_compiled_torque_callback_equals_python_callback(krang):
     import mujoco
 
     from benchmarks._native import Rollout, initial_state
-    from particlesim.io import mjcb
+    from particlesim.twins import callbacks as mjcb
 
     model, q0, qd0, targs, _, jm = krang
     dt = 1e-3
