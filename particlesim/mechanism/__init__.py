@@ -9,12 +9,16 @@ from .dynamics import Prepared, prepare, mass_properties, accelerations, acceler
 from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
 from .integrate import SwitchCrossedWarning, project, simulate_mechanism
 from .kinematics import KinematicSolution, kinematic_analysis
-from .model import Mechanism
+from .model import AppliedForce, AppliedTorque, BodyLoad, BodyState, Mechanism
 from .outputs import (body_angles, body_com_positions, body_poses, body_reactions, body_velocities, cut_joint_forces,
                       driver_efforts, joint_reaction)
 
 __all__ = [
     "Mechanism",
+    "AppliedForce",
+    "AppliedTorque",
+    "BodyLoad",
+    "BodyState",
     "ChainPlan",
     "chain_plan",
     "chain_accelerations",

@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import ModelError
 from ..inertia import RigidInertia
 from ..particles import N_PRIMARY, check_placement, equivalent_particles
-from .model import AppliedSpec, DotRows, DriveRows, LinearRows, Mechanism, Topology
+from .model import AppliedForce, AppliedTorque, BodyLoad, DotRows, DriveRows, LinearRows, Mechanism, Topology
 
 __all__ = ["MechanismBuilder", "ConstraintRank", "RedundantConstraintsWarning", "ASSEMBLY_RTOL", "RANK_RTOL"]
 
@@ -852,17 +852,16 @@ class _Build:
         applied = []
         for name, kind, target, fn in mb._applied:
             if kind == "force":
-                applied.append(AppliedSpec(name=name, kind=kind, target=self.pidx(target, f"force '{name}'"), fn=fn))
+                applied.append(AppliedForce(name=name, point=self.pidx(target, f"force '{name}'"), fn=fn))
             elif kind == "load":
                 for b in target:
                     if b not in self.body_names:
                         raise ModelError(f"body load '{name}': unknown body '{b}'")
-                applied.append(AppliedSpec(name=name, kind=kind, target=tuple(self.body_names.index(b)
-                                                                              for b in target), fn=fn))
+                applied.append(BodyLoad(name=name, bodies=tuple(self.body_names.index(b) for b in target), fn=fn))
             else:
                 if target not in self.body_names or len(self.body_particles[self.body_names.index(target)]) == 2:
                     raise ModelError(f"torque '{name}': '{target}' is not a spatial or planar body")
-                applied.append(AppliedSpec(name=name, kind=kind, target=self.body_names.index(target), fn=fn))
+                applied.append(AppliedTorque(name=name, body=self.body_names.index(target), fn=fn))
         rot = []
         for name, a, b, k, c, th0 in mb._rotational:
             idx = []

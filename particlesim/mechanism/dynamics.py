@@ -35,7 +35,7 @@ from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur,
 from ._algebra import LSQ_REFINE, LSQ_RTOL
 from ._algebra import scalar_mass_matrix  # noqa: F401  (re-exported for Mechanism.scalar_mass_matrix)
 from .forces import generalized_point_forces, point_forces, potential_energy, torque_forces
-from .model import Mechanism
+from .model import AppliedForce, Mechanism
 
 __all__ = ["Prepared", "prepare", "mass_properties", "accelerations", "accelerations_and_multipliers",
            "kinetic_energy", "total_energy", "residuals"]
@@ -51,7 +51,7 @@ def _forces(mech: Mechanism, prep: Prepared, t, x, xd, contact=None):
     """Point forces ``(K, 3)`` (or None) and torque generalised forces ``(3F,)`` (or None)."""
     topo = mech.topo
     f_pts = None
-    if topo.spring_names or topo.tyre_names or any(ap.kind == "force" for ap in mech.applied):
+    if topo.spring_names or topo.tyre_names or any(isinstance(ap, AppliedForce) for ap in mech.applied):
         pts = prep.wk @ x.reshape(-1, 3) + prep.p0
         vel = prep.wk @ xd.reshape(-1, 3)
         f_pts = point_forces(mech, t, x, xd, pts, vel, contact)

@@ -15,7 +15,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..spatial import frame_from_points, unskew
-from .model import Mechanism
+from .model import AppliedForce, AppliedTorque, BodyLoad, Mechanism
 
 __all__ = ["generalized_forces", "point_forces", "generalized_point_forces", "torque_forces", "potential_energy",
            "spring_lengths", "body_angular_velocity", "rotational_angles"]
@@ -59,7 +59,7 @@ def point_forces(mech: Mechanism, t, x, xd, pts: Float[Array, "K 3"], vel: Float
     mechanism has none of them. ``contact`` (T,) fixes each tyre's law (in contact or not) instead of reading it
     from the sign of its deflection: the smooth branch of an evented rollout (:mod:`.events`)."""
     topo = mech.topo
-    forces_applied = [ap for ap in mech.applied if ap.kind == "force"]
+    forces_applied = [ap for ap in mech.applied if isinstance(ap, AppliedForce)]
     if not (topo.spring_names or topo.tyre_names or forces_applied):
         return None
     f_pts = jnp.zeros_like(pts)
@@ -82,7 +82,7 @@ def point_forces(mech: Mechanism, t, x, xd, pts: Float[Array, "K 3"], vel: Float
         at = np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k
         f_pts = f_pts.at[at].add(f[:, None] * n)
     for ap in forces_applied:
-        f_pts = f_pts.at[ap.target].add(ap.fn(t, x, xd))
+        f_pts = f_pts.at[ap.point].add(ap.fn(t, x, xd))
     return f_pts
 
 
@@ -126,15 +126,15 @@ def _rotational_forces(mech: Mechanism, x, xd):
     return -pull(tau)[0]
 
 
-def body_load_wrenches(mech: Mechanism, ap, t, x, xd) -> dict:
-    """Call a body load (``ap.kind == 'load'``) on its bodies' named states; returns ``{body: (force, torque)}``
+def body_load_wrenches(mech: Mechanism, ap: BodyLoad, t, x, xd) -> dict:
+    """Call a :class:`~.model.BodyLoad` on its bodies' named states; returns ``{body: (force, torque)}``
     checked (a force at the centre of mass and a torque, 3 numbers each, world frame)."""
     from ..errors import ModelError
     from .model import BodyState
     from .outputs import body_poses, body_velocities
 
-    names = [mech.topo.body_names[b] for b in ap.target]
-    idx = np.asarray(ap.target, dtype=int)
+    names = [mech.topo.body_names[b] for b in ap.bodies]
+    idx = np.asarray(ap.bodies, dtype=int)
     rot, org = body_poses(mech, x)
     com = jnp.einsum("bij,bj->bi", rot, mech.body_com) + org
     v_com, omega = body_velocities(mech, x, xd)
@@ -155,13 +155,13 @@ def body_load_wrenches(mech: Mechanism, ap, t, x, xd) -> dict:
     return checked
 
 
-def body_load_forces(mech: Mechanism, ap, t, x, xd):
+def body_load_forces(mech: Mechanism, ap: BodyLoad, t, x, xd):
     """Generalised forces ``(3F,)`` of one body load: virtual power ``F . v_com + tau . omega`` of every body's
     wrench (:func:`body_load_wrenches`) over the free coordinates."""
     from .outputs import body_velocities
 
-    names = [mech.topo.body_names[b] for b in ap.target]
-    idx = np.asarray(ap.target, dtype=int)
+    names = [mech.topo.body_names[b] for b in ap.bodies]
+    idx = np.asarray(ap.bodies, dtype=int)
     wrenches = body_load_wrenches(mech, ap, t, x, xd)
     f = jnp.zeros((len(names), 3), dtype=x.dtype)
     tau = jnp.zeros((len(names), 3), dtype=x.dtype)
@@ -180,15 +180,15 @@ def body_load_forces(mech: Mechanism, ap, t, x, xd):
 def torque_forces(mech: Mechanism, t, x, xd):
     """Generalised forces ``(3F,)`` of the applied torques (virtual power ``tau . omega``), the body loads and the
     rotational spring-dampers; ``None`` if none."""
-    torques = [ap for ap in mech.applied if ap.kind in ("torque", "load")]
+    torques = [ap for ap in mech.applied if isinstance(ap, (AppliedTorque, BodyLoad))]
     if not torques and not mech.topo.rotational_names:
         return None
     q = jnp.zeros_like(x) if not mech.topo.rotational_names else _rotational_forces(mech, x, xd)
     for ap in torques:
-        if ap.kind == "load":
+        if isinstance(ap, BodyLoad):
             q = q + body_load_forces(mech, ap, t, x, xd)
             continue
-        _, pull = jax.vjp(lambda v, b=ap.target: body_angular_velocity(mech, b, x, v), xd)
+        _, pull = jax.vjp(lambda v, b=ap.body: body_angular_velocity(mech, b, x, v), xd)
         q = q + pull(ap.fn(t, x, xd))[0]
     return q
 

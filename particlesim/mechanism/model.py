@@ -41,7 +41,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-__all__ = ["Mechanism", "Topology", "DotRows", "LinearRows", "DriveRows", "AppliedSpec", "BodyState"]
+__all__ = ["Mechanism", "Topology", "DotRows", "LinearRows", "DriveRows", "AppliedForce", "AppliedTorque",
+           "BodyLoad", "BodyState"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,17 +188,32 @@ class Topology:
         return list(self.dot.labels) + list(self.linear.labels) + list(self.drive.labels)
 
 
-class AppliedSpec(eqx.Module):
-    """An applied force ``fn(t, x, xd) -> (3,)`` at a point (``kind='force'``), a torque on a body (``'torque'``),
-    or loads on named bodies from their named states (``'load'``: ``fn(t, BodyState) -> {body: (force, torque)}``,
-    ``target`` the tuple of body indices).
+class AppliedForce(eqx.Module):
+    """A force ``fn(t, q, qd) -> (3,)`` (world) acting at point ``point`` (its index).
 
-    ``fn`` is static: the same function object reuses compiled code; give it parameters by making it an
-    ``equinox.Module`` (its array fields are then traced)."""
+    Applied loads (this class, :class:`AppliedTorque`, :class:`BodyLoad`) are final classes: the force assembly
+    dispatches on their type. ``fn`` is static: the same function object reuses compiled code; give it
+    parameters by making it an ``equinox.Module`` (its array fields are then traced)."""
 
     name: str = eqx.field(static=True)
-    kind: str = eqx.field(static=True)
-    target: int | tuple = eqx.field(static=True)  # point index (force), body index (torque), body indices (load)
+    point: int = eqx.field(static=True)
+    fn: Callable
+
+
+class AppliedTorque(eqx.Module):
+    """A torque ``fn(t, q, qd) -> (3,)`` (world) acting on body ``body`` (its index; a spatial or planar body)."""
+
+    name: str = eqx.field(static=True)
+    body: int = eqx.field(static=True)
+    fn: Callable
+
+
+class BodyLoad(eqx.Module):
+    """Loads from the named states of ``bodies`` (their indices): ``fn(t, BodyState) -> {body: (force, torque)}``,
+    each force at that body's centre of mass, each torque on the body (world frame)."""
+
+    name: str = eqx.field(static=True)
+    bodies: tuple = eqx.field(static=True)
     fn: Callable
 
 
@@ -234,7 +250,7 @@ class Mechanism(eqx.Module):
     rotational_stiffness: Float[Array, " R"]
     rotational_damping: Float[Array, " R"]
     rotational_free_angle: Float[Array, " R"]
-    applied: tuple  # AppliedSpec
+    applied: tuple  # AppliedForce, AppliedTorque, BodyLoad
     # --- static topology ---
     topo: Topology = eqx.field(static=True)
     # --- driving constraints (rows ``n(t).(p_a - p_b) - c(t)``, :class:`DriveRows`) ---

@@ -17,7 +17,7 @@ from jaxtyping import Array, Float
 
 from ..errors import ModelError
 from ..spatial import unskew
-from .model import Mechanism
+from .model import AppliedTorque, BodyLoad, Mechanism
 
 __all__ = ["body_poses", "body_com_positions", "body_velocities", "body_angles", "cut_joint_forces",
            "driver_efforts", "body_reactions", "joint_reaction"]
@@ -247,13 +247,13 @@ def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, 
             z = jnp.zeros((), x.dtype)
             r_b = r_b - primary_load_forces(mech, bi, x, jnp.zeros(3, x.dtype), jnp.stack([z, z, z + spring_torque[bi]]))
         for ap in mech.applied:  # loads and torques on the body, on all its primaries (ground ones too)
-            if ap.kind == "load" and bi in ap.target:
+            if isinstance(ap, BodyLoad) and bi in ap.bodies:
                 from .forces import body_load_wrenches
 
                 wrench = body_load_wrenches(mech, ap, t, x, xd).get(topo.body_names[bi])
                 if wrench is not None:
                     r_b = r_b - primary_load_forces(mech, bi, x, *wrench)
-            if ap.kind == "torque" and ap.target == bi:
+            if isinstance(ap, AppliedTorque) and ap.body == bi:
                 r_b = r_b - primary_load_forces(mech, bi, x, jnp.zeros(3, x.dtype), ap.fn(t, x, xd))
         for r, bodies in owners.items():
             if bi not in bodies:
