@@ -1,4 +1,4 @@
-# The two commands of the README. Each creates .venv and installs the project on first use.
+# The two commands of the README (make run, make test). Each creates .venv and installs the project on first use.
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
@@ -27,7 +27,7 @@ $(BENCH_STAMP): $(STAMP)
 	$(PY) -m pip install --quiet -e ".[test,bench]"
 	touch $(BENCH_STAMP)
 
-## bench: rerun the benchmarks and rewrite their results
+## bench: rerun the benchmarks, rewrite benchmarks/results/ and the tables of benchmarks/README.md
 bench: $(BENCH_STAMP)
 	$(PY) -m benchmarks.run_all
 

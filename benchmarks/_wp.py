@@ -9,7 +9,7 @@ of fixed steps, all against one reference trajectory (ours, Dopri8 at a tight to
 
 :func:`sweep_ours` and :func:`sweep_fixed` produce rows; :func:`finish` adds the headline (per method, the cheapest
 run whose final error reaches the target) and the speed ratios at equal error; :func:`write` writes
-``results/<name>.{json,csv,png}``; :func:`markdown` renders the README section.
+``results/<name>.{json,csv,png}``; :func:`markdown` renders its section of ``benchmarks/README.md``.
 
 :func:`compile_ours` compiles one solver's run (tolerances traced); pass the same ``compiled`` dict to
 :func:`sweep_ours` so the reference (usually Dopri8 at a tight tolerance) and the sweep share one compile.

@@ -7,7 +7,7 @@ converges to that reference to 4e-13 m (RK4, dt = 1e-4): the reference is shared
 
 * ours: Tsit5 and Dopri8 over a sweep of rtol (atol = rtol), through the public entry point. The implicit
   Kvaerno solvers are not swept: on this scene they take more steps than the explicit ones (a third rejected at
-  rtol 1e-8; 17 s per 0.2 s of motion), see the README;
+  rtol 1e-8; 17 s per 0.2 s of motion), see benchmarks/README.md;
 * MuJoCo C twin: RK4 through ``mujoco.rollout`` over fixed steps up to the coarsest that is stable and meets the
   target (RK4 is stable here up to about 3e-4 s; no time is interpolated across that limit), and its implicit-in-velocity integrator (``implicitfast``, first order, built for stiff damping).
 

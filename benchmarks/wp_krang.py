@@ -227,7 +227,7 @@ def run() -> dict:
         "the target at any step tried.",
         "The implicit Kvaerno solvers are expensive on this non-stiff scene (per step a few hundred times an "
         "explicit step; see the steps and wall-time columns), hence their short sweeps; they are for stiff friction "
-        "(README, Simulation), not for this case.",
+        "(docs/simulation.md), not for this case.",
     ]
     res = _wp.finish(NAME, f"Krang, fixed wheel, 18 joints, gravity + arm torques, viscous friction {FV:g} N m s/rad", T_END, TARGET, "rad",
                       "max |joint angle − reference| over the 18 joints",

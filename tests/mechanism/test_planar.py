@@ -123,12 +123,12 @@ def test_readme_four_bar_builds_in_the_plane_with_one_freedom(readme):
     assert mech.topo.planar and mb.constraint_rank.dof == 1
     moved = max(np.linalg.norm(v) for v in mb.assembly.moved.values())
     assert 1e-5 < moved < 1e-3  # the rounded loop was closed
-    assert float(jnp.max(jnp.abs(constraints(mech, jnp.asarray(readme["x0"]))))) <= 1e-12
+    assert float(jnp.max(jnp.abs(constraints(mech, jnp.asarray(readme["q0"]))))) <= 1e-12
     assert float(jnp.max(jnp.abs(readme["sol"].q.reshape(201, -1, 3)[:, :, 2]))) <= 1e-15  # stays in the plane
 
 
 def test_readme_four_bar_against_body_coordinates(readme):
-    mech, x0, sol, angles = readme["mech"], np.asarray(readme["x0"]), readme["sol"], readme["angles"]
+    mech, x0, sol, angles = readme["mech"], np.asarray(readme["q0"]), readme["sol"], readme["angles"]
     ia, ib = mech.free_slice("A"), mech.free_slice("B")
     a0, b0 = x0[ia][:2], x0[ib][:2]
     # the body shapes as built (from the rounded data): rocker length from C to the given B'
