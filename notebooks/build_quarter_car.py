@@ -50,8 +50,8 @@ CELLS = [
     new_markdown_cell("## The mechanism\n\nThirteen free particles, their rigid distances, the joints, and 3 degrees "
                       "of freedom (chassis heave, suspension travel, wheel spin)."),
     new_code_cell(
-        "mech, x0 = qc.quarter_car()\n"
-        "print('free particles:', mech.n_free, ' constraints:', residuals(mech, x0, 0 * x0)[0].shape[0])\n"
+        "mech, q0 = qc.quarter_car()\n"
+        "print('free particles:', mech.n_free, ' constraints:', residuals(mech, q0, 0 * q0)[0].shape[0])\n"
         "for b, name in enumerate(mech.topo.body_names):\n"
         "    print(f'{name:10s} {mech.topo.body_kind(b):8s}', [mech.particle_names[i] for i in mech.topo.body_particles[b]])\n"
         "print([lab for lab in mech.topo.row_labels() if not lab.startswith('body')])"
@@ -61,12 +61,12 @@ CELLS = [
                       "hold to round-off."),
     new_code_cell(
         "ts = np.linspace(0.0, 2.0, 201)\n"
-        "run = jax.jit(lambda m, x: simulate_mechanism(m, x, jnp.zeros_like(x), 0.0, 2.0, solver='dopri5',\n"
-        "                                              rtol=1e-8, atol=1e-10, saveat_ts=ts))\n"
-        "sol = run(mech, jnp.asarray(x0))\n"
+        "run = lambda m, q: simulate_mechanism(m, q, jnp.zeros_like(q), 0.0, 2.0, solver='dopri5', rtol=1e-8,\n"
+        "                                      atol=1e-10, saveat_ts=ts)  # compiled once, reused for new values\n"
+        "sol = run(mech, jnp.asarray(q0))\n"
         "k = mech.point_index('centre')\n"
-        "z = np.asarray(jax.vmap(lambda x: mech.point_positions(mech.all_positions(x))[k, 2])(sol.q))\n"
-        "res = np.asarray(jax.vmap(lambda x, v: jnp.abs(residuals(mech, x, v)[0]).max())(sol.q, sol.qd))\n"
+        "z = np.asarray(jax.vmap(lambda q: mech.point_positions(mech.all_positions(q))[k, 2])(sol.q))\n"
+        "res = np.asarray(jax.vmap(lambda q, qd: jnp.abs(residuals(mech, q, qd)[0]).max())(sol.q, sol.qd))\n"
         "fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.5))\n"
         "a1.plot(ts, z - z[0]); a1.set_xlabel('t [s]'); a1.set_ylabel('chassis displacement [m]')\n"
         "a2.semilogy(ts, np.maximum(res, 1e-18)); a2.set_xlabel('t [s]'); a2.set_ylabel('max |constraint|')\n"
@@ -79,8 +79,8 @@ CELLS = [
         "import equinox as eqx\n"
         "for k_spring in (3e4, 5.11e4, 8e4):\n"
         "    m2 = mech.with_params(spring={'suspension': {'stiffness': k_spring}})\n"
-        "    s2 = run(m2, jnp.asarray(x0))\n"
-        "    z2 = np.asarray(jax.vmap(lambda x: m2.point_positions(m2.all_positions(x))[k, 2])(s2.q))\n"
+        "    s2 = run(m2, jnp.asarray(q0))\n"
+        "    z2 = np.asarray(jax.vmap(lambda q: m2.point_positions(m2.all_positions(q))[k, 2])(s2.q))\n"
         "    plt.plot(ts, z2 - z2[0], label=f'k = {k_spring:.3g} N/m')\n"
         "plt.xlabel('t [s]'); plt.ylabel('chassis displacement [m]'); plt.legend(); plt.show()"
     ),

@@ -42,11 +42,11 @@ fit_quarter_car = fit_traces
 
 
 def chassis_traces(ts, *, names: Sequence[str] = FITTED, payloads: Sequence[float] = (0.0, 100.0), mech=None,
-                   x0=None, solver: str = "dopri8", rtol: float = 1e-7, atol: float = 1e-9,
+                   q0=None, solver: str = "dopri8", rtol: float = 1e-7, atol: float = 1e-9,
                    events: bool = True, stabilise: bool = False) -> TraceModel:
     """The measurement model: chassis height (point ``centre``, m) at ``ts`` in free responses from rest of the
     quarter car with each of ``payloads`` (kg) added to the chassis mass (outputs ``(B, R, T)``); the constants
-    ``names`` (keys of :data:`PARAMETERS`) are free, the rest keep the mechanism's values. ``mech, x0``: default
+    ``names`` (keys of :data:`PARAMETERS`) are free, the rest keep the mechanism's values. ``mech, q0``: default
     :func:`~particlesim.scenes.quarter_car.quarter_car`; the solver settings as in
     :func:`~particlesim.identify.traces.trace_model`.
 
@@ -65,9 +65,9 @@ def chassis_traces(ts, *, names: Sequence[str] = FITTED, payloads: Sequence[floa
         raise ValueError(f"fitting {masses} needs runs with at least two distinct chassis payloads (one free "
                          f"response cannot separate masses from stiffnesses and dampers); got payloads {payloads}")
     if mech is None:
-        mech, x0 = quarter_car()
+        mech, q0 = quarter_car()
     k = mech.point_index("centre")
-    return trace_model(mech, x0, ts, {n: PARAMETERS[n] for n in names},
-                       lambda m, x: m.point_positions(m.all_positions(x))[k, 2],
+    return trace_model(mech, q0, ts, {n: PARAMETERS[n] for n in names},
+                       lambda m, q: m.point_positions(m.all_positions(q))[k, 2],
                        runs=[{("body", "chassis", "mass"): float(p)} for p in payloads], solver=solver, rtol=rtol,
                        atol=atol, events=events, stabilise=stabilise)

@@ -2,7 +2,7 @@
 
 A :class:`TraceModel` maps named mechanism constants (``(group, element, field)`` paths of
 :meth:`~particlesim.mechanism.Mechanism.with_params`, e.g. ``("spring", "suspension", "stiffness")``) to what is
-measured along one or several runs: ``observe(mech, x)`` at the sample times ``ts`` of each run, the runs differing
+measured along one or several runs: ``observe(mech, q)`` at the sample times ``ts`` of each run, the runs differing
 by known changes (a payload, a stiffer spring) added to the constants. :func:`fit_traces` is Gauss–Newton in ``log
 p`` on the stacked residuals with step shortening (by 4) when the cost does not decrease; residuals and their
 Jacobian come from one compiled forward-mode pass through the rollouts (``jax.jacfwd`` through diffrax with
@@ -56,14 +56,14 @@ def _current(mech, path):
     return getattr(mech, f"{group}_{field}")[names.index(element)]
 
 
-def trace_model(mech, x0, ts, params: Mapping[str, tuple], observe: Callable, *,
-                runs: Sequence[Mapping[tuple, float]] = ({},), xd0=None, solver: str = "dopri8",
+def trace_model(mech, q0, ts, params: Mapping[str, tuple], observe: Callable, *,
+                runs: Sequence[Mapping[tuple, float]] = ({},), qd0=None, solver: str = "dopri8",
                 rtol: float = 1e-7, atol: float = 1e-9, events: bool = False, stabilise: bool = False
                 ) -> TraceModel:
-    """The measurement model of ``mech`` released from ``(x0, xd0)`` (``xd0`` default zero) at ``ts[0]``.
+    """The measurement model of ``mech`` released from ``(q0, qd0)`` (``qd0`` default zero) at ``ts[0]``.
 
     ``params``: the free constants, ``{label: (group, element, field)}``; the others keep the mechanism's values.
-    ``observe(mech, x)``: the measured quantity at particle positions ``x`` (any shape; the mechanism passed is
+    ``observe(mech, q)``: the measured quantity at particle positions ``q`` (any shape; the mechanism passed is
     the one with the run's constants). ``runs``: one mapping per run, ``{(group, element, field): known change}``
     added to that constant (fitted or not), e.g. ``[{}, {("body", "chassis", "mass"): 100.0}]``. ``solver``,
     ``rtol``, ``atol``, ``events``, ``stabilise`` as in :func:`~particlesim.mechanism.simulate_mechanism` (the
@@ -93,7 +93,7 @@ def trace_model(mech, x0, ts, params: Mapping[str, tuple], observe: Callable, *,
     offsets = np.array([[r.get(p, 0.0) for p in changed] for r in runs], dtype=float).reshape(len(runs), -1)
     if not np.all(np.isfinite(offsets)):
         raise ValueError(f"run changes must be finite; got {runs}")
-    xd0 = jnp.zeros_like(x0) if xd0 is None else jnp.asarray(xd0)
+    qd0 = jnp.zeros_like(q0) if qd0 is None else jnp.asarray(qd0)
     t0, t1 = float(ts[0]), float(ts[-1])
 
     def run(p, offset):
@@ -104,10 +104,10 @@ def trace_model(mech, x0, ts, params: Mapping[str, tuple], observe: Callable, *,
         for (group, element, field), v in values.items():
             nested.setdefault(group, {}).setdefault(element, {})[field] = v
         m = mech.with_params(**nested)
-        sol = simulate_mechanism(m, x0, xd0, t0, t1, solver=solver, rtol=rtol, atol=atol, saveat_ts=ts,
+        sol = simulate_mechanism(m, q0, qd0, t0, t1, solver=solver, rtol=rtol, atol=atol, saveat_ts=ts,
                                  adjoint="forward", events=events, stabilise=stabilise,
                                  throw=False)  # a failed trial run is NaN: the fit shortens that step
-        return jax.vmap(lambda x: jnp.asarray(observe(m, x)))(sol.q)
+        return jax.vmap(lambda q: jnp.asarray(observe(m, q)))(sol.q)
 
     def all_runs(p):  # (P,) -> (R, T, ...)
         return jax.vmap(run, in_axes=(None, 0))(p, jnp.asarray(offsets))
@@ -116,7 +116,7 @@ def trace_model(mech, x0, ts, params: Mapping[str, tuple], observe: Callable, *,
         r = (all_runs(jnp.exp(log_p)) - y_meas).ravel()
         return r, r
 
-    shape = (len(runs), ts.size) + jax.eval_shape(lambda x: jnp.asarray(observe(mech, x)), x0).shape
+    shape = (len(runs), ts.size) + jax.eval_shape(lambda q: jnp.asarray(observe(mech, q)), q0).shape
     outputs = jax.jit(jax.vmap(all_runs))
     residual_jacobian = jax.jit(jax.vmap(lambda lp, y: jax.jacfwd(residual, has_aux=True)(lp, y)[::-1],
                                          in_axes=(0, None)))

@@ -5,7 +5,8 @@ from .assembly import Assembly, assemble
 from .builder import MechanismBuilder
 from .chain import ChainPlan, chain_accelerations, chain_mass_blocks, chain_plan
 from .constraints import constraint_gamma, constraint_jacobian, constraint_labels, constraints, velocity_constraints
-from .dynamics import Prepared, prepare, mass_properties, accelerations, accelerations_and_multipliers, kinetic_energy, residuals, total_energy
+from .dynamics import (Prepared, accelerations, accelerations_and_multipliers, kinetic_energy, lumped_masses, mass_matrix,
+                       mass_properties, prepare, residuals, scalar_mass_matrix, total_energy)
 from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
 from .integrate import SwitchCrossedWarning, project, simulate_mechanism
 from .kinematics import KinematicSolution, kinematic_analysis
@@ -34,6 +35,9 @@ __all__ = [
     "constraint_labels",
     "velocity_constraints",
     "mass_properties",
+    "mass_matrix",
+    "scalar_mass_matrix",
+    "lumped_masses",
     "accelerations",
     "accelerations_and_multipliers",
     "kinetic_energy",

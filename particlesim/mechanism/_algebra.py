@@ -69,6 +69,17 @@ def scalar_mass_matrix(mech: Mechanism) -> Float[Array, "P P"]:
     return m_s
 
 
+def mass_matrix(mech: Mechanism) -> Float[Array, "3F 3F"]:
+    """The constant mass matrix of the free coordinates, ``M_s[free, free] (x) I_3`` (Kronecker product)."""
+    f = np.asarray(mech.topo.free, dtype=int)
+    return jnp.kron(scalar_mass_matrix(mech)[np.ix_(f, f)], jnp.eye(3))
+
+
+def lumped_masses(mech: Mechanism) -> Float[Array, " P"]:
+    """Per-particle mass carrying linear momentum and weight: ``m_bar`` of Attia eq. (25), summed over bodies."""
+    return jnp.sum(scalar_mass_matrix(mech), axis=1)
+
+
 class Prepared(eqx.Module):
     """Everything that depends on the parameters only (not on the state): computed once per rollout."""
 
@@ -213,16 +224,16 @@ def _mm(a: Array, b: Array) -> Array:
     return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
 
 
-def rows(prep: Prepared, x: Float[Array, " 3F"], xd=None, drive: Drive | None = None) -> Rows:
-    """The rows' vectors at ``(x, xd)``; ``drive`` (:func:`drive_at`) is required when the mechanism has drivers."""
-    vu = _mm(prep.d, x.reshape(-1, 3)) + prep.c
-    dvu = None if xd is None else _mm(prep.d, xd.reshape(-1, 3))
+def rows(prep: Prepared, q: Float[Array, " 3F"], qd=None, drive: Drive | None = None) -> Rows:
+    """The rows' vectors at ``(q, qd)``; ``drive`` (:func:`drive_at`) is required when the mechanism has drivers."""
+    vu = _mm(prep.d, q.reshape(-1, 3)) + prep.c
+    dvu = None if qd is None else _mm(prep.d, qd.reshape(-1, 3))
     if prep.drv_d is None:
         return Rows(vu, dvu)
     if drive is None:
         raise ValueError("this mechanism has driving constraints: give the time (drive_at(mech, t))")
-    du = _mm(prep.drv_d, x.reshape(-1, 3)) + prep.drv_c0
-    ddu = None if xd is None else _mm(prep.drv_d, xd.reshape(-1, 3))
+    du = _mm(prep.drv_d, q.reshape(-1, 3)) + prep.drv_c0
+    ddu = None if qd is None else _mm(prep.drv_d, qd.reshape(-1, 3))
     return Rows(vu, dvu, drive, du, ddu)
 
 
@@ -233,10 +244,10 @@ def _partner(vu: Array, turn=None) -> Array:
     return jnp.concatenate([quarter_turn(vu[n:], turn), quarter_turn(vu[:n], turn, -1.0)], axis=0)
 
 
-def residual(prep: Prepared, kappa: Array, r: Rows, x: Array) -> Float[Array, " C"]:
+def residual(prep: Prepared, kappa: Array, r: Rows, q: Array) -> Float[Array, " C"]:
     n = prep.scale.shape[0]
     dot = prep.scale * jnp.sum(r.vu[:n] * quarter_turn(r.vu[n:], prep.turn), axis=1) - kappa
-    lin = jnp.sum(prep.j_lin * x.reshape(1, -1, 3), axis=(1, 2)) + prep.c_lin
+    lin = jnp.sum(prep.j_lin * q.reshape(1, -1, 3), axis=(1, 2)) + prep.c_lin
     if r.drive is None:
         return jnp.concatenate([dot, lin])
     return jnp.concatenate([dot, lin, jnp.sum(r.drive.n * r.du, axis=1) - r.drive.c])
@@ -255,7 +266,7 @@ def gamma(prep: Prepared, r: Rows) -> Float[Array, " C"]:
 
 
 def velocity_target(prep: Prepared, r: Rows) -> Float[Array, " C"] | float:
-    """The right-hand side of ``J xd = nu``: zero, except ``c' - n' . (p_a - p_b)`` on driving rows."""
+    """The right-hand side of ``J qd = nu``: zero, except ``c' - n' . (p_a - p_b)`` on driving rows."""
     if r.drive is None:
         return 0.0
     zeros = jnp.zeros(prep.scale.shape[0] + prep.c_lin.shape[0], dtype=r.du.dtype)

@@ -29,10 +29,10 @@ Hold = Union[str, tuple]
 class Assembly(NamedTuple):
     """Result of :func:`assemble`: the consistent state, the correction applied and how far it moved each particle."""
 
-    x: np.ndarray  #: consistent free-particle positions ``(3F,)``
-    correction: np.ndarray  #: ``x - x_given``
+    q: np.ndarray  #: consistent free-particle positions ``(3F,)``
+    correction: np.ndarray  #: ``q - q_given``
     moved: dict  #: particle name -> distance moved [m], largest first
-    residual: float  #: largest constraint residual at ``x``
+    residual: float  #: largest constraint residual at ``q``
     iterations: int
 
 
@@ -53,24 +53,24 @@ def held_columns(names: Sequence[str], free: Sequence[int], hold: Sequence[Hold]
     return mask
 
 
-def gauss_newton(rows: Callable, x: np.ndarray, held: np.ndarray, tol: float, labels: Sequence[str], *,
+def gauss_newton(rows: Callable, q: np.ndarray, held: np.ndarray, tol: float, labels: Sequence[str], *,
                  max_iter: int = 50) -> tuple[np.ndarray, float, int]:
-    """Minimum-norm Gauss–Newton on ``rows(x) -> (residual (C,), jacobian (C, n))`` over the coordinates not
+    """Minimum-norm Gauss–Newton on ``rows(q) -> (residual (C,), jacobian (C, n))`` over the coordinates not
     ``held``; ``ModelError`` naming the worst rows when it does not reach ``tol``."""
-    x = np.array(x, dtype=float)
+    q = np.array(q, dtype=float)
     move = ~held
     r = np.zeros(0)
     for it in range(max_iter + 1):
-        r, j = rows(x)
+        r, j = rows(q)
         worst = float(np.max(np.abs(r))) if r.size else 0.0
         if not np.isfinite(worst):
             break
         if worst <= tol:
-            return x, worst, it
+            return q, worst, it
         if it == max_iter:
             break
         dx = np.linalg.lstsq(j[:, move], -r, rcond=1e-10)[0]
-        x[move] += dx
+        q[move] += dx
     order = np.argsort(-np.abs(np.nan_to_num(r, nan=np.inf)))[:4]
     raise ModelError("assembly failed: the constraints cannot all be met from these positions"
                      + (" with the held coordinates" if held.any() else "") + f" after {max_iter} Gauss-Newton "
@@ -78,32 +78,32 @@ def gauss_newton(rows: Callable, x: np.ndarray, held: np.ndarray, tol: float, la
                      + " (check lengths, held coordinates and that the loop can close)")
 
 
-def report(names: Sequence[str], free: Sequence[int], x_given: np.ndarray, x: np.ndarray, residual: float,
+def report(names: Sequence[str], free: Sequence[int], q_given: np.ndarray, q: np.ndarray, residual: float,
            iterations: int) -> Assembly:
-    d = np.linalg.norm((x - x_given).reshape(-1, 3), axis=1)
+    d = np.linalg.norm((q - q_given).reshape(-1, 3), axis=1)
     moved = {names[free[i]]: float(d[i]) for i in np.argsort(-d) if d[i] > 0}
-    return Assembly(x=x, correction=x - x_given, moved=moved, residual=residual, iterations=iterations)
+    return Assembly(q=q, correction=q - q_given, moved=moved, residual=residual, iterations=iterations)
 
 
-def assemble(mech: Mechanism, x, *, hold: Sequence[Hold] = (), tol: float | None = None) -> Assembly:
-    """The consistent configuration nearest (in particle coordinates) to the approximate state ``x (3F,)``.
+def assemble(mech: Mechanism, q, *, hold: Sequence[Hold] = (), tol: float | None = None) -> Assembly:
+    """The consistent configuration nearest (in particle coordinates) to the approximate state ``q (3F,)``.
 
-    ``hold`` keeps particles (by name) or single coordinates (``("crank tip", "y")``) where ``x`` puts them, e.g.
+    ``hold`` keeps particles (by name) or single coordinates (``("crank tip", "y")``) where ``q`` puts them, e.g.
     to set a crank angle and let the rest of the loop follow. The body shapes are those of the mechanism; only
     the joints and loops are closed. Returns an :class:`Assembly` (state, correction, distance moved per particle,
     residual). Raises :class:`ModelError` with the worst constraints when no consistent configuration is reached.
     """
     topo = mech.topo
-    x_given = np.asarray(x, dtype=float).reshape(-1)
-    if x_given.shape != (mech.n_coords,) or not np.all(np.isfinite(x_given)):
-        raise ModelError(f"assemble: x must be {mech.n_coords} finite numbers (3 per free particle), "
-                         f"got shape {np.shape(x)}")
+    q_given = np.asarray(q, dtype=float).reshape(-1)
+    if q_given.shape != (mech.n_coords,) or not np.all(np.isfinite(q_given)):
+        raise ModelError(f"assemble: q must be {mech.n_coords} finite numbers (3 per free particle), "
+                         f"got shape {np.shape(q)}")
     held = held_columns(topo.particle_names, topo.free, hold)
     def rows(y):
         return np.asarray(constraints(mech, y)), np.asarray(constraint_jacobian(mech, y))
 
-    pts = np.asarray(mech.all_positions(x_given))
+    pts = np.asarray(mech.all_positions(q_given))
     size = max(float(np.ptp(pts, axis=0).max()), 1e-12)
     tol = ASSEMBLE_RTOL * size * max(size, 1.0) if tol is None else float(tol)
-    xa, res, it = gauss_newton(rows, x_given, held, tol, topo.row_labels())
-    return report(topo.particle_names, topo.free, x_given, xa, res, it)
+    xa, res, it = gauss_newton(rows, q_given, held, tol, topo.row_labels())
+    return report(topo.particle_names, topo.free, q_given, xa, res, it)

@@ -54,7 +54,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 class MechanismBuilder:
-    """Collects a mechanism description; :meth:`build` checks it and returns ``(Mechanism, x0)``."""
+    """Collects a mechanism description; :meth:`build` checks it and returns ``(Mechanism, q0)``."""
 
     def __init__(self, gravity: Optional[Sequence[float]] = None, *, planar: bool = False):
         """``gravity`` (default 9.81 along -z; along -y when ``planar``). ``planar=True``: a planar mechanism in the
@@ -274,11 +274,11 @@ class MechanismBuilder:
                             apply_at))
 
     def applied_force(self, name: str, point: str, fn: Callable) -> None:
-        """A force ``fn(t, x, xd) -> (3,)`` (global) acting at a particle or point."""
+        """A force ``fn(t, q, qd) -> (3,)`` (global) acting at a particle or point."""
         self._applied.append((name, "force", point, fn))
 
     def applied_torque(self, name: str, body: str, fn: Callable) -> None:
-        """A torque ``fn(t, x, xd) -> (3,)`` (global) acting on a spatial or planar body."""
+        """A torque ``fn(t, q, qd) -> (3,)`` (global) acting on a spatial or planar body."""
         self._applied.append((name, "torque", body, fn))
 
     def body_load(self, name: str, bodies: Sequence[str], fn: Callable) -> None:
@@ -342,7 +342,7 @@ class MechanismBuilder:
     # ---- build ----
     def build(self, *, dof: Optional[int] = None, assemble: bool = False, hold: Sequence = (),
               multipliers: str = "auto") -> tuple[Mechanism, np.ndarray]:
-        """Check everything and return the mechanism and its assembly state ``x0`` ``(3F,)``.
+        """Check everything and return the mechanism and its assembly state ``q0`` ``(3F,)``.
 
         ``multipliers`` says how the constraint forces are solved. "exact": one Cholesky factorisation per
         evaluation; redundant constraints (a Jacobian without full row rank at the assembly) are refused, naming
@@ -435,16 +435,16 @@ class _Build:
                     self.lin.append((i, plane, (0.0, 0.0, 1.0), f"{self.names[i]} in plane"))
         self.check_dangling()
         mech = self.mechanism()
-        x0 = np.stack([self.pos[i] for i in mech.topo.free]).reshape(-1) if mech.topo.free else np.zeros(0)
+        q0 = np.stack([self.pos[i] for i in mech.topo.free]).reshape(-1) if mech.topo.free else np.zeros(0)
         self.assembly = None
         if assemble or hold:
-            x0 = self.assemble(mech, x0, hold)
-        lsq = _check(self, mech, x0, dof, multipliers)
+            q0 = self.assemble(mech, q0, hold)
+        lsq = _check(self, mech, q0, dof, multipliers)
         if lsq:
             mech = dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, least_squares=True))
-        return mech, x0
+        return mech, q0
 
-    def assemble(self, mech: Mechanism, x0: np.ndarray, hold) -> np.ndarray:
+    def assemble(self, mech: Mechanism, q0: np.ndarray, hold) -> np.ndarray:
         """Close joints and loops from approximate positions (NumPy Gauss-Newton on the typed rows); moves the
         free particles and the points they carry."""
         from .assembly import ASSEMBLE_RTOL, gauss_newton, held_columns, report
@@ -457,16 +457,16 @@ class _Build:
 
         offset = np.asarray(mech.drive_offset)
 
-        def rows(x):
-            return _np_rows(topo, kappa, pts0 + wk @ (x - x0).reshape(-1, 3), wk, offset)
+        def rows(q):
+            return _np_rows(topo, kappa, pts0 + wk @ (q - q0).reshape(-1, 3), wk, offset)
 
         held = held_columns(topo.particle_names, topo.free, hold)
-        x, res, it = gauss_newton(rows, x0, held, ASSEMBLE_RTOL * size * max(size, 1.0), topo.row_labels())
-        self.point_world = list(pts0 + wk @ (x - x0).reshape(-1, 3))
+        q, res, it = gauss_newton(rows, q0, held, ASSEMBLE_RTOL * size * max(size, 1.0), topo.row_labels())
+        self.point_world = list(pts0 + wk @ (q - q0).reshape(-1, 3))
         for c, i in enumerate(topo.free):
-            self.pos[i] = x[3 * c:3 * c + 3]
-        self.assembly = report(topo.particle_names, topo.free, x0, x, res, it)
-        return x
+            self.pos[i] = q[3 * c:3 * c + 3]
+        self.assembly = report(topo.particle_names, topo.free, q0, q, res, it)
+        return q
 
     # -- stages --
     def particle(self, n: str, what: str) -> int:
@@ -1001,7 +1001,7 @@ def _np_mass_matrix(bd: _Build, topo: Topology) -> np.ndarray:
     return m
 
 
-def _check(bd: _Build, mech: Mechanism, x0: np.ndarray, dof: Optional[int], multipliers: str = "auto") -> bool:
+def _check(bd: _Build, mech: Mechanism, q0: np.ndarray, dof: Optional[int], multipliers: str = "auto") -> bool:
     """Assembly, spring lengths, rank, degrees of freedom, positive kinetic energy on every admissible motion.
     Returns whether the multipliers are solved by least squares; leaves the rank in ``bd.constraint_rank``."""
     topo = mech.topo

@@ -111,17 +111,17 @@ class _System(eqx.Module):
     d: Array  # (N, R, 3) row vectors r_a - r_b
 
 
-def _system(mech: Mechanism, plan: ChainPlan, mb: Array, x) -> _System:
+def _system(mech: Mechanism, plan: ChainPlan, mb: Array, q) -> _System:
     idx = np.asarray(plan.idx)  # (N, k)
     n_bodies = idx.shape[0]
     sh, ow = np.asarray(plan.shared), np.asarray(plan.owned)
     no, ns, nr = len(ow), len(sh), len(plan.rows)
-    r = mech.all_positions(x)[idx]  # (N, k, 3)
-    eye3 = jnp.eye(3, dtype=x.dtype)
+    r = mech.all_positions(q)[idx]  # (N, k, 3)
+    eye3 = jnp.eye(3, dtype=q.dtype)
     ra, rb = np.asarray([p[0] for p in plan.rows]), np.asarray([p[1] for p in plan.rows])
     d = r[:, ra] - r[:, rb]  # (N, R, 3)
     # Row Jacobians w.r.t. the local slots: (N, R, k, 3).
-    jac = jnp.zeros((n_bodies, nr, idx.shape[1], 3), dtype=x.dtype)
+    jac = jnp.zeros((n_bodies, nr, idx.shape[1], 3), dtype=q.dtype)
     jac = jac.at[:, np.arange(nr), ra].add(d).at[:, np.arange(nr), rb].add(-d)
     g_own = jac[:, :, ow].reshape(n_bodies, nr, 3 * no)
     h_sh = jac[:, :, sh].reshape(n_bodies, nr, 3 * ns)
@@ -132,11 +132,11 @@ def _system(mech: Mechanism, plan: ChainPlan, mb: Array, x) -> _System:
     c_mss, c_mso, c_h = _child(m_ss), _child(m_so), _child(h_sh)
     nb = 3 * no + nr
     mass_diag = m_oo + jnp.einsum("ij,bjk,lk->bil", emb, c_mss, emb)
-    dmat = jnp.zeros((n_bodies, nb, nb), dtype=x.dtype)
+    dmat = jnp.zeros((n_bodies, nb, nb), dtype=q.dtype)
     dmat = dmat.at[:, :3 * no, :3 * no].set(mass_diag)
     dmat = dmat.at[:, :3 * no, 3 * no:].set(jnp.swapaxes(g_own, 1, 2))
     dmat = dmat.at[:, 3 * no:, :3 * no].set(g_own)
-    umat = jnp.zeros((n_bodies, nb, nb), dtype=x.dtype)
+    umat = jnp.zeros((n_bodies, nb, nb), dtype=q.dtype)
     umat = umat.at[:, :3 * no, :3 * no].set(jnp.einsum("ij,bjk->bik", emb, c_mso))
     umat = umat.at[:, :3 * no, 3 * no:].set(jnp.einsum("ij,bkj->bik", emb, c_h))
     return _System(dmat, umat, d)
@@ -197,18 +197,18 @@ def _owned_to_free(mech: Mechanism, plan: ChainPlan, owned: Array) -> Array:
     return out[np.asarray(mech.free)].reshape(-1)
 
 
-def _velocities(mech: Mechanism, plan: ChainPlan, xd) -> Array:
+def _velocities(mech: Mechanism, plan: ChainPlan, qd) -> Array:
     free_mask = np.zeros(mech.topo.n_particles)
     free_mask[np.asarray(mech.free)] = 1.0
-    return (mech.all_positions(xd) * free_mask[:, None])[np.asarray(plan.idx)]  # (N, k, 3)
+    return (mech.all_positions(qd) * free_mask[:, None])[np.asarray(plan.idx)]  # (N, k, 3)
 
 
 def _row_pairs(plan: ChainPlan):
     return np.asarray([p[0] for p in plan.rows]), np.asarray([p[1] for p in plan.rows])
 
 
-def chain_accelerations(mech: Mechanism, plan: ChainPlan, t, x: Float[Array, " 3F"],
-                        xd: Float[Array, " 3F"], *, mass_blocks: Array | None = None) -> Float[Array, " 3F"]:
+def chain_accelerations(mech: Mechanism, plan: ChainPlan, t, q: Float[Array, " 3F"],
+                        qd: Float[Array, " 3F"], *, mass_blocks: Array | None = None) -> Float[Array, " 3F"]:
     """Particle accelerations by the tip-to-base elimination; equal to the dense solve (tested). ``mass_blocks``
     from :func:`chain_mass_blocks` (computed here if not given)."""
     del t
@@ -216,8 +216,8 @@ def chain_accelerations(mech: Mechanism, plan: ChainPlan, t, x: Float[Array, " 3
     sh, ow = np.asarray(plan.shared), np.asarray(plan.owned)
     no, ns = len(ow), len(sh)
     mb = chain_mass_blocks(mech) if mass_blocks is None else mass_blocks  # (N, k, k)
-    sys = _system(mech, plan, mb, x)
-    v = _velocities(mech, plan, xd)
+    sys = _system(mech, plan, mb, q)
+    v = _velocities(mech, plan, qd)
     ra, rb = _row_pairs(plan)
     gamma = -jnp.sum((v[:, ra] - v[:, rb]) ** 2, axis=-1)  # (N, R)
     lumped = jnp.sum(mb, axis=2)  # (N, k): each body's share of its particles' weight
@@ -230,17 +230,17 @@ def chain_accelerations(mech: Mechanism, plan: ChainPlan, t, x: Float[Array, " 3
     return _owned_to_free(mech, plan, z[:, :3 * no].reshape(n_bodies, no, 3))
 
 
-def chain_project(mech: Mechanism, plan: ChainPlan, x, xd, *, mass_blocks: Array | None = None):
+def chain_project(mech: Mechanism, plan: ChainPlan, q, qd, *, mass_blocks: Array | None = None):
     """The mass-orthogonal projection of :mod:`.integrate` along the chain: ``[[M, J^T], [J, 0]] [dx; mu] =
     [0; -Phi]`` solved with one block factorisation (O(N)), two position passes, then two velocity passes."""
     n_bodies = len(plan.idx)
     no = len(plan.owned)
     mb = chain_mass_blocks(mech) if mass_blocks is None else mass_blocks
-    sys = _system(mech, plan, mb, x)
+    sys = _system(mech, plan, mb, q)
     dinv = _factor(sys)
     ra, rb = _row_pairs(plan)
     kappa = mech.dot_kappa[np.asarray(plan.row_index)]  # (N, R)
-    zeros = jnp.zeros((n_bodies, 3 * no), dtype=x.dtype)
+    zeros = jnp.zeros((n_bodies, 3 * no), dtype=q.dtype)
 
     def correction(row_rhs):
         z = _solve(sys, dinv, jnp.concatenate([zeros, row_rhs], axis=1))
@@ -249,10 +249,10 @@ def chain_project(mech: Mechanism, plan: ChainPlan, x, xd, *, mass_blocks: Array
     d = sys.d
     for _ in range(2):
         phi = 0.5 * jnp.sum(d * d, axis=-1) - kappa
-        x = x + correction(-phi)
-        r = mech.all_positions(x)[np.asarray(plan.idx)]
+        q = q + correction(-phi)
+        r = mech.all_positions(q)[np.asarray(plan.idx)]
         d = r[:, ra] - r[:, rb]
     for _ in range(2):
-        v = _velocities(mech, plan, xd)
-        xd = xd + correction(-jnp.sum(d * (v[:, ra] - v[:, rb]), axis=-1))
-    return x, xd
+        v = _velocities(mech, plan, qd)
+        qd = qd + correction(-jnp.sum(d * (v[:, ra] - v[:, rb]), axis=-1))
+    return q, qd

@@ -5,7 +5,7 @@ Points (particles and points fixed to bodies) are affine in the particle positio
 form (one vectorised kernel per kind, whatever the number of rows):
 
 =============  ==========================================  =====================================  ==========================
-kind           residual                                    d/dp of slots (a, b, c, d)             ``gamma = -d2/dt2 | xdd=0``
+kind           residual                                    d/dp of slots (a, b, c, d)             ``gamma = -d2/dt2 | qdd=0``
 =============  ==========================================  =====================================  ==========================
 dot            ``s (p_a - p_b).(p_c - p_d) - kappa``       ``s u, -s u, s v, -s v``               ``-2 s (V_a - V_b).(V_c - V_d)``
 linear         ``e . (p_a - p_b)``                         ``e, -e``                              ``0``
@@ -17,7 +17,7 @@ weights, which depend on parameters only (computed once per parameter set, :clas
 
 Row order: all dot rows (body distances, then joint rows in declaration order), then all linear rows, then the
 driving rows ``n(t) . (p_a - p_b) - c(t)`` (:class:`~.model.DriveRows`), the only rows that depend on time. The
-acceleration-level form is ``J(x, t) xdd = gamma(x, xd, t)``, the velocity-level one ``J xd = nu(x, t)``.
+acceleration-level form is ``J(q, t) qdd = gamma(q, qd, t)``, the velocity-level one ``J qd = nu(q, t)``.
 """
 
 from __future__ import annotations
@@ -170,19 +170,19 @@ def linear_jacobian(topo: Topology, g_lin: Array) -> Float[Array, "L F 3"]:
 
 # ---- public functions of (mech, x): convenient, recompute the point weights on every call ----
 
-def _state(mech: Mechanism, x, xd=None):
+def _state(mech: Mechanism, q, qd=None):
     w = point_weights(mech)
-    pts = points(mech.topo, w, mech.all_positions(x))
-    if xd is None:
+    pts = points(mech.topo, w, mech.all_positions(q))
+    if qd is None:
         return w, pts
     col = mech.topo.free_column()
-    vel_all = jnp.where(jnp.asarray(col >= 0)[:, None], mech.all_positions(xd), 0.0)
+    vel_all = jnp.where(jnp.asarray(col >= 0)[:, None], mech.all_positions(qd), 0.0)
     return w, pts, points(mech.topo, w, vel_all)
 
 
-def constraints(mech: Mechanism, x: Float[Array, " 3F"], *, t=0.0) -> Float[Array, " C"]:
-    """All constraint residuals at ``x`` (zero on the constraint manifold); ``t`` matters only for driving rows."""
-    return row_residuals(mech, _state(mech, x)[1], t)
+def constraints(mech: Mechanism, q: Float[Array, " 3F"], *, t=0.0) -> Float[Array, " C"]:
+    """All constraint residuals at ``q`` (zero on the constraint manifold); ``t`` matters only for driving rows."""
+    return row_residuals(mech, _state(mech, q)[1], t)
 
 
 def constraint_labels(mech: Mechanism) -> list[str]:
@@ -190,10 +190,10 @@ def constraint_labels(mech: Mechanism) -> list[str]:
     return mech.topo.row_labels()
 
 
-def constraint_jacobian(mech: Mechanism, x: Float[Array, " 3F"], *, t=0.0) -> Float[Array, "C 3F"]:
+def constraint_jacobian(mech: Mechanism, q: Float[Array, " 3F"], *, t=0.0) -> Float[Array, "C 3F"]:
     """``J = d constraints / dx`` in closed form, ``(C, 3F)``."""
     topo = mech.topo
-    w, pts = _state(mech, x)
+    w, pts = _state(mech, q)
     wk = point_free_weights(topo, w)
     g_dot, g_lin = row_incidence(topo, wk)
     blocks = row_blocks(topo, pts) if len(topo.dot) else jnp.zeros((0, 4, 3))
@@ -208,23 +208,23 @@ def constraint_jacobian(mech: Mechanism, x: Float[Array, " 3F"], *, t=0.0) -> Fl
     return j.reshape(j.shape[0], -1)
 
 
-def velocity_constraints(mech: Mechanism, x, xd, *, t=0.0) -> Float[Array, " C"]:
-    """``d/dt constraints = J(x, t) xd - nu(x, t)``: zero for admissible velocities (``nu`` is zero except on
+def velocity_constraints(mech: Mechanism, q, qd, *, t=0.0) -> Float[Array, " C"]:
+    """``d/dt constraints = J(q, t) qd - nu(q, t)``: zero for admissible velocities (``nu`` is zero except on
     driving rows)."""
-    t = jnp.asarray(t, dtype=x.dtype)
-    return jax.jvp(lambda y, s: constraints(mech, y, t=s), (x, t), (xd, jnp.ones_like(t)))[1]
+    t = jnp.asarray(t, dtype=q.dtype)
+    return jax.jvp(lambda y, s: constraints(mech, y, t=s), (q, t), (qd, jnp.ones_like(t)))[1]
 
 
-def constraint_gamma(mech: Mechanism, x, xd, *, t=0.0) -> Float[Array, " C"]:
-    """Right-hand side of ``J xdd = gamma``: ``gamma = -(d^2/dt^2 constraints)`` at zero acceleration (closed
+def constraint_gamma(mech: Mechanism, q, qd, *, t=0.0) -> Float[Array, " C"]:
+    """Right-hand side of ``J qdd = gamma``: ``gamma = -(d^2/dt^2 constraints)`` at zero acceleration (closed
     form)."""
-    g = row_gamma(mech.topo, _state(mech, x, xd)[2])
+    g = row_gamma(mech.topo, _state(mech, q, qd)[2])
     if not len(mech.topo.drive):
         return g
     from ._algebra import drive_at
 
     drv = drive_at(mech, t)
-    _, pts, vel = _state(mech, x, xd)
+    _, pts, vel = _state(mech, q, qd)
     u, du = _driven_vectors(mech, pts), _driven_vectors(mech, vel)
     n_fixed = len(mech.topo.dot) + len(mech.topo.linear)
     tail = drv.cdd - 2.0 * jnp.sum(drv.nd * du, axis=1) - jnp.sum(drv.ndd * u, axis=1)

@@ -1,9 +1,9 @@
 """Equations of motion of a mechanism in particle coordinates, and their acceleration-level solve.
 
 With the secondary particles eliminated (Attia eqs. (23)–(27)), the particles' kinetic energy is
-``T = 1/2 xd^T M xd`` with a *constant* mass matrix ``M = M_s (x) I_3`` (``M_s`` the sum of the bodies' primary mass
+``T = 1/2 qd^T M qd`` with a *constant* mass matrix ``M = M_s (x) I_3`` (``M_s`` the sum of the bodies' primary mass
 matrices, :func:`~particlesim.particles.primary_mass_matrix`). D'Alembert's principle with the constraints
-``Phi(x) = 0`` (:mod:`.constraints`) gives
+``Phi(q) = 0`` (:mod:`.constraints`) gives
 
     M xdd + J^T lam = Q(t, x, xd),      J xdd = gamma(x, xd)
 
@@ -33,12 +33,12 @@ from .._linalg import spd_solve
 from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, gamma, jacobian, prepare, residual,
                        rows, schur, solve_schur, velocity_target)
 from ._algebra import LSQ_REFINE, LSQ_RTOL
-from ._algebra import scalar_mass_matrix  # noqa: F401  (re-exported for Mechanism.scalar_mass_matrix)
+from ._algebra import lumped_masses, mass_matrix, scalar_mass_matrix
 from .forces import generalized_point_forces, point_forces, potential_energy, torque_forces
 from .model import AppliedForce, Mechanism
 
-__all__ = ["Prepared", "prepare", "mass_properties", "accelerations", "accelerations_and_multipliers",
-           "kinetic_energy", "total_energy", "residuals"]
+__all__ = ["Prepared", "prepare", "mass_properties", "mass_matrix", "scalar_mass_matrix", "lumped_masses",
+           "accelerations", "accelerations_and_multipliers", "kinetic_energy", "total_energy", "residuals"]
 
 
 def mass_properties(mech: Mechanism) -> Prepared:
@@ -47,24 +47,24 @@ def mass_properties(mech: Mechanism) -> Prepared:
     return prepare(mech)
 
 
-def _forces(mech: Mechanism, prep: Prepared, t, x, xd, contact=None):
+def _forces(mech: Mechanism, prep: Prepared, t, q, qd, contact=None):
     """Point forces ``(K, 3)`` (or None) and torque generalised forces ``(3F,)`` (or None)."""
     topo = mech.topo
     f_pts = None
     if topo.spring_names or topo.tyre_names or any(isinstance(ap, AppliedForce) for ap in mech.applied):
-        pts = prep.wk @ x.reshape(-1, 3) + prep.p0
-        vel = prep.wk @ xd.reshape(-1, 3)
-        f_pts = point_forces(mech, t, x, xd, pts, vel, contact)
-    return f_pts, torque_forces(mech, t, x, xd)
+        pts = prep.wk @ q.reshape(-1, 3) + prep.p0
+        vel = prep.wk @ qd.reshape(-1, 3)
+        f_pts = point_forces(mech, t, q, qd, pts, vel, contact)
+    return f_pts, torque_forces(mech, t, q, qd)
 
 
-def _solve(mech: Mechanism, prep: Prepared, t, x, xd, baumgarte: float, contact=None):
-    r = rows(prep, x, xd, drive_at(mech, t))
+def _solve(mech: Mechanism, prep: Prepared, t, q, qd, baumgarte: float, contact=None):
+    r = rows(prep, q, qd, drive_at(mech, t))
     g = gamma(prep, r)
     if baumgarte:
-        g = g - 2.0 * baumgarte * (apply_j(prep, r, xd.reshape(-1, 3)) - velocity_target(prep, r)) - \
-            baumgarte**2 * residual(prep, mech.dot_kappa, r, x)
-    f_pts, q_torque = _forces(mech, prep, t, x, xd, contact)
+        g = g - 2.0 * baumgarte * (apply_j(prep, r, qd.reshape(-1, 3)) - velocity_target(prep, r)) - \
+            baumgarte**2 * residual(prep, mech.dot_kappa, r, q)
+    f_pts, q_torque = _forces(mech, prep, t, q, qd, contact)
     if mech.topo.saddle_point:
         return _solve_kkt(prep, r, g, f_pts, q_torque, mech.topo.least_squares)
     minv_q = prep.minv_qg
@@ -106,38 +106,38 @@ def _solve_kkt(prep: Prepared, r, g, f_pts, q_torque, least_squares: bool = Fals
     return sol[:n], sol[n:]
 
 
-def accelerations_and_multipliers(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"], *,
+def accelerations_and_multipliers(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"], *,
                                   baumgarte: float = 0.0, props: Prepared | None = None) -> tuple[Array, Array]:
-    """Solve for ``(xdd, lam)``; ``props`` as from :func:`mass_properties` (computed here if not given).
+    """Solve for ``(qdd, lam)``; ``props`` as from :func:`mass_properties` (computed here if not given).
 
-    ``baumgarte`` (a rate ``a`` in 1/s, default 0) adds ``-2 a J xd - a^2 Phi`` to ``gamma`` so that drift decays
+    ``baumgarte`` (a rate ``a`` in 1/s, default 0) adds ``-2 a J qd - a^2 Phi`` to ``gamma`` so that drift decays
     critically damped; with the per-step projection of :func:`~particlesim.mechanism.simulate_mechanism` it is not
     needed.
     """
     prep = prepare(mech) if props is None else props
-    return _solve(mech, prep, t, x, xd, baumgarte)
+    return _solve(mech, prep, t, q, qd, baumgarte)
 
 
-def accelerations(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"], *,
+def accelerations(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"], *,
                   baumgarte: float = 0.0, props: Prepared | None = None) -> Float[Array, " 3F"]:
-    """Particle accelerations ``xdd`` (see :func:`accelerations_and_multipliers`)."""
-    return accelerations_and_multipliers(mech, t, x, xd, baumgarte=baumgarte, props=props)[0]
+    """Particle accelerations ``qdd`` (see :func:`accelerations_and_multipliers`)."""
+    return accelerations_and_multipliers(mech, t, q, qd, baumgarte=baumgarte, props=props)[0]
 
 
-def kinetic_energy(mech: Mechanism, xd: Float[Array, " 3F"], *, props: Prepared | None = None) -> Float[Array, ""]:
-    """``1/2 xd^T M xd``: equal to the bodies' rigid kinetic energy for admissible velocities."""
+def kinetic_energy(mech: Mechanism, qd: Float[Array, " 3F"], *, props: Prepared | None = None) -> Float[Array, ""]:
+    """``1/2 qd^T M qd``: equal to the bodies' rigid kinetic energy for admissible velocities."""
     ms = prepare(mech).ms if props is None else props.ms
-    v = xd.reshape(-1, 3)
+    v = qd.reshape(-1, 3)
     return 0.5 * jnp.sum(v * (ms @ v))
 
 
-def total_energy(mech: Mechanism, x, xd, *, props: Prepared | None = None) -> Float[Array, ""]:
-    return kinetic_energy(mech, xd, props=props) + potential_energy(mech, x)
+def total_energy(mech: Mechanism, q, qd, *, props: Prepared | None = None) -> Float[Array, ""]:
+    return kinetic_energy(mech, qd, props=props) + potential_energy(mech, q)
 
 
-def residuals(mech: Mechanism, x, xd, t=0.0) -> tuple[Array, Array]:
-    """Position- and velocity-level constraint residuals ``(Phi(x, t), J xd - nu(t))`` (``t`` matters only for
+def residuals(mech: Mechanism, q, qd, *, t=0.0) -> tuple[Array, Array]:
+    """Position- and velocity-level constraint residuals ``(Phi(q, t), J qd - nu(t))`` (``t`` matters only for
     driving constraints)."""
     from .constraints import constraints, velocity_constraints
 
-    return constraints(mech, x, t=t), velocity_constraints(mech, x, xd, t=t)
+    return constraints(mech, q, t=t), velocity_constraints(mech, q, qd, t=t)

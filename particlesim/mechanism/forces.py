@@ -15,26 +15,27 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..spatial import frame_from_points, unskew
+from ._algebra import lumped_masses
 from .model import AppliedForce, AppliedTorque, BodyLoad, Mechanism
 
 __all__ = ["generalized_forces", "point_forces", "generalized_point_forces", "torque_forces", "potential_energy",
            "spring_lengths", "body_angular_velocity", "rotational_angles"]
 
 
-def _pts(mech: Mechanism, x):
+def _pts(mech: Mechanism, q):
     from .constraints import point_weights, points
 
-    return points(mech.topo, point_weights(mech), mech.all_positions(x))
+    return points(mech.topo, point_weights(mech), mech.all_positions(q))
 
 
-def spring_lengths(mech: Mechanism, x) -> Float[Array, " S"]:
+def spring_lengths(mech: Mechanism, q) -> Float[Array, " S"]:
     """Current length of every spring-damper."""
-    p = _pts(mech, x)
+    p = _pts(mech, q)
     ab = np.asarray(mech.topo.spring_points, dtype=int).reshape(-1, 2)
     return jnp.linalg.norm(p[ab[:, 0]] - p[ab[:, 1]], axis=1)
 
 
-def body_angular_velocity(mech: Mechanism, b: int, x, xd) -> Float[Array, "3"]:
+def body_angular_velocity(mech: Mechanism, b: int, q, qd) -> Float[Array, "3"]:
     """Angular velocity of a (spatial or planar) body from its first three primaries: ``unskew(F' F^T)``."""
     idx = np.asarray(mech.topo.body_particles[b])
 
@@ -42,7 +43,7 @@ def body_angular_velocity(mech: Mechanism, b: int, x, xd) -> Float[Array, "3"]:
         p = mech.all_positions(y)[idx]
         return frame_from_points(p[0], p[1], p[2])
 
-    f, fd = jax.jvp(frame, (x,), (xd,))
+    f, fd = jax.jvp(frame, (q,), (qd,))
     return unskew(fd @ f.T)
 
 
@@ -54,7 +55,7 @@ def tyre_deflections(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, 
     return jnp.sum(pts[k] * n, axis=1) - mech.tyre_ground - mech.tyre_radius
 
 
-def point_forces(mech: Mechanism, t, x, xd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"], contact=None):
+def point_forces(mech: Mechanism, t, q, qd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"], contact=None):
     """Cartesian force on every point from springs, tyres and applied forces, ``(K, 3)``; ``None`` if the
     mechanism has none of them. ``contact`` (T,) fixes each tyre's law (in contact or not) instead of reading it
     from the sign of its deflection: the smooth branch of an evented rollout (:mod:`.events`)."""
@@ -82,7 +83,7 @@ def point_forces(mech: Mechanism, t, x, xd, pts: Float[Array, "K 3"], vel: Float
         at = np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k
         f_pts = f_pts.at[at].add(f[:, None] * n)
     for ap in forces_applied:
-        f_pts = f_pts.at[ap.point].add(ap.fn(t, x, xd))
+        f_pts = f_pts.at[ap.point].add(ap.fn(t, q, qd))
     return f_pts
 
 
@@ -91,18 +92,18 @@ def generalized_point_forces(wk: Float[Array, "K F"], f_pts: Float[Array, "K 3"]
     return (wk.T @ f_pts).reshape(-1)
 
 
-def rotational_angles(mech: Mechanism, x) -> Float[Array, " R"]:
+def rotational_angles(mech: Mechanism, q) -> Float[Array, " R"]:
     """Relative rotation about z of every rotational spring's body ``b`` from its ``a`` (the ground: fixed) since
     the assembly, wrapped to ``(-pi, pi]``: from the directions between each body's first two primaries."""
     topo = mech.topo
-    r = mech.all_positions(x)
+    r = mech.all_positions(q)
     ab = np.asarray(topo.rotational_bodies, dtype=int).reshape(-1, 2)
 
     def direction(bodies, world: bool):
         out = []
         for b in bodies:
             if b < 0:
-                out.append(jnp.array([1.0, 0.0], dtype=x.dtype))
+                out.append(jnp.array([1.0, 0.0], dtype=q.dtype))
                 continue
             i, j = topo.body_particles[b][:2]
             d = (r[j] - r[i]) if world else (mech.body_primaries[b, 1] - mech.body_primaries[b, 0])
@@ -118,15 +119,15 @@ def rotational_angles(mech: Mechanism, x) -> Float[Array, " R"]:
     return jnp.arctan2(jnp.sin(d), jnp.cos(d))
 
 
-def _rotational_forces(mech: Mechanism, x, xd):
+def _rotational_forces(mech: Mechanism, q, qd):
     """``-(k (theta - theta0) + c theta') dtheta/dx``: one jvp for the rates and one vjp for the forces."""
-    th, th_dot = jax.jvp(lambda y: rotational_angles(mech, y), (x,), (xd,))
+    th, th_dot = jax.jvp(lambda y: rotational_angles(mech, y), (q,), (qd,))
     tau = mech.rotational_stiffness * (th - mech.rotational_free_angle) + mech.rotational_damping * th_dot
-    _, pull = jax.vjp(lambda y: rotational_angles(mech, y), x)
+    _, pull = jax.vjp(lambda y: rotational_angles(mech, y), q)
     return -pull(tau)[0]
 
 
-def body_load_wrenches(mech: Mechanism, ap: BodyLoad, t, x, xd) -> dict:
+def body_load_wrenches(mech: Mechanism, ap: BodyLoad, t, q, qd) -> dict:
     """Call a :class:`~.model.BodyLoad` on its bodies' named states; returns ``{body: (force, torque)}``
     checked (a force at the centre of mass and a torque, 3 numbers each, world frame)."""
     from ..errors import ModelError
@@ -135,9 +136,9 @@ def body_load_wrenches(mech: Mechanism, ap: BodyLoad, t, x, xd) -> dict:
 
     names = [mech.topo.body_names[b] for b in ap.bodies]
     idx = np.asarray(ap.bodies, dtype=int)
-    rot, org = body_poses(mech, x)
+    rot, org = body_poses(mech, q)
     com = jnp.einsum("bij,bj->bi", rot, mech.body_com) + org
-    v_com, omega = body_velocities(mech, x, xd)
+    v_com, omega = body_velocities(mech, q, qd)
     state = BodyState(position=dict(zip(names, com[idx])), rotation=dict(zip(names, rot[idx])),
                       velocity=dict(zip(names, v_com[idx])), angular_velocity=dict(zip(names, omega[idx])))
     out = ap.fn(t, state)
@@ -147,7 +148,7 @@ def body_load_wrenches(mech: Mechanism, ap: BodyLoad, t, x, xd) -> dict:
                                                                   else ""))
     checked = {}
     for k, (force, torque) in out.items():
-        force, torque = jnp.asarray(force, dtype=x.dtype), jnp.asarray(torque, dtype=x.dtype)
+        force, torque = jnp.asarray(force, dtype=q.dtype), jnp.asarray(torque, dtype=q.dtype)
         if force.shape != (3,) or torque.shape != (3,):
             raise ModelError(f"body load '{ap.name}': body '{k}' needs a force and a torque of 3 numbers each, got "
                              f"shapes {force.shape} and {torque.shape}")
@@ -155,79 +156,79 @@ def body_load_wrenches(mech: Mechanism, ap: BodyLoad, t, x, xd) -> dict:
     return checked
 
 
-def body_load_forces(mech: Mechanism, ap: BodyLoad, t, x, xd):
+def body_load_forces(mech: Mechanism, ap: BodyLoad, t, q, qd):
     """Generalised forces ``(3F,)`` of one body load: virtual power ``F . v_com + tau . omega`` of every body's
     wrench (:func:`body_load_wrenches`) over the free coordinates."""
     from .outputs import body_velocities
 
     names = [mech.topo.body_names[b] for b in ap.bodies]
     idx = np.asarray(ap.bodies, dtype=int)
-    wrenches = body_load_wrenches(mech, ap, t, x, xd)
-    f = jnp.zeros((len(names), 3), dtype=x.dtype)
-    tau = jnp.zeros((len(names), 3), dtype=x.dtype)
+    wrenches = body_load_wrenches(mech, ap, t, q, qd)
+    f = jnp.zeros((len(names), 3), dtype=q.dtype)
+    tau = jnp.zeros((len(names), 3), dtype=q.dtype)
     for k, (force, torque) in wrenches.items():
         i = names.index(k)
         f, tau = f.at[i].set(force), tau.at[i].set(torque)
 
     def vel(v):
-        lin, ang = body_velocities(mech, x, v)
+        lin, ang = body_velocities(mech, q, v)
         return lin[idx], ang[idx]
 
-    _, pull = jax.vjp(vel, xd)
+    _, pull = jax.vjp(vel, qd)
     return pull((f, tau))[0]
 
 
-def torque_forces(mech: Mechanism, t, x, xd):
+def torque_forces(mech: Mechanism, t, q, qd):
     """Generalised forces ``(3F,)`` of the applied torques (virtual power ``tau . omega``), the body loads and the
     rotational spring-dampers; ``None`` if none."""
     torques = [ap for ap in mech.applied if isinstance(ap, (AppliedTorque, BodyLoad))]
     if not torques and not mech.topo.rotational_names:
         return None
-    q = jnp.zeros_like(x) if not mech.topo.rotational_names else _rotational_forces(mech, x, xd)
+    gen = jnp.zeros_like(q) if not mech.topo.rotational_names else _rotational_forces(mech, q, qd)
     for ap in torques:
         if isinstance(ap, BodyLoad):
-            q = q + body_load_forces(mech, ap, t, x, xd)
+            gen = gen + body_load_forces(mech, ap, t, q, qd)
             continue
-        _, pull = jax.vjp(lambda v, b=ap.body: body_angular_velocity(mech, b, x, v), xd)
-        q = q + pull(ap.fn(t, x, xd))[0]
-    return q
+        _, pull = jax.vjp(lambda v, b=ap.body: body_angular_velocity(mech, b, q, v), qd)
+        gen = gen + pull(ap.fn(t, q, qd))[0]
+    return gen
 
 
-def generalized_forces(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"], *,
+def generalized_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"], *,
                        lumped=None) -> Float[Array, " 3F"]:
     """Gravity + spring-dampers + tyres + applied forces and torques, as forces on the free coordinates."""
     from .constraints import point_free_weights, point_weights, points
 
     topo = mech.topo
     free = np.asarray(topo.free, dtype=int)
-    lumped = mech.lumped_masses() if lumped is None else lumped
-    q = (lumped[free][:, None] * mech.gravity[None, :]).reshape(-1)
+    lumped = lumped_masses(mech) if lumped is None else lumped
+    gen = (lumped[free][:, None] * mech.gravity[None, :]).reshape(-1)
     w = point_weights(mech)
     col = topo.free_column()
-    pts = points(topo, w, mech.all_positions(x))
-    vel = points(topo, w, jnp.where(jnp.asarray(col >= 0)[:, None], mech.all_positions(xd), 0.0))
-    f_pts = point_forces(mech, t, x, xd, pts, vel)
+    pts = points(topo, w, mech.all_positions(q))
+    vel = points(topo, w, jnp.where(jnp.asarray(col >= 0)[:, None], mech.all_positions(qd), 0.0))
+    f_pts = point_forces(mech, t, q, qd, pts, vel)
     if f_pts is not None:
-        q = q + generalized_point_forces(point_free_weights(topo, w), f_pts)
-    q_t = torque_forces(mech, t, x, xd)
-    return q if q_t is None else q + q_t
+        gen = gen + generalized_point_forces(point_free_weights(topo, w), f_pts)
+    gen_t = torque_forces(mech, t, q, qd)
+    return gen if gen_t is None else gen + gen_t
 
 
-def potential_energy(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, ""]:
+def potential_energy(mech: Mechanism, q: Float[Array, " 3F"]) -> Float[Array, ""]:
     """Gravity, spring and (compressed) tyre energy; dampers and applied loads have none."""
     topo = mech.topo
-    r = mech.all_positions(x)
-    u = -jnp.sum(mech.lumped_masses() * (r @ mech.gravity))
+    r = mech.all_positions(q)
+    u = -jnp.sum(lumped_masses(mech) * (r @ mech.gravity))
     if topo.spring_names or topo.tyre_names:
-        p = _pts(mech, x)
+        p = _pts(mech, q)
     if topo.spring_names:
-        ell = spring_lengths(mech, x)
+        ell = spring_lengths(mech, q)
         u = u + jnp.sum(0.5 * mech.spring_stiffness * (ell - mech.spring_free_length) ** 2)
     if topo.tyre_names:
         k = np.asarray(topo.tyre_points, dtype=int)
         d = jnp.sum(p[k] * jnp.asarray(topo.tyre_normals), axis=1) - mech.tyre_ground - mech.tyre_radius
         u = u + jnp.sum(jnp.where(d < 0.0, 0.5 * mech.tyre_stiffness * d**2, 0.0))
     if topo.rotational_names:
-        th = rotational_angles(mech, x) - mech.rotational_free_angle
+        th = rotational_angles(mech, q) - mech.rotational_free_angle
         u = u + jnp.sum(0.5 * mech.rotational_stiffness * th**2)
     return u

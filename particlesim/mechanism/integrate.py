@@ -1,9 +1,9 @@
 """Integrating a mechanism: the acceleration-level equations plus a projection onto the constraints every step.
 
 Stabilisation scheme: *coordinate projection* (Hairer, Lubich & Wanner, Geometric Numerical Integration, §IV.4;
-Eich 1993). After every step of any diffrax solver, positions are projected back onto ``Phi(x) = 0`` along the
+Eich 1993). After every step of any diffrax solver, positions are projected back onto ``Phi(q) = 0`` along the
 mass-orthogonal correction ``dx = -M^-1 J^T (J M^-1 J^T)^-1 Phi`` (the correction of least kinetic-energy norm),
-then velocities onto ``J xd = 0`` the same way. One Cholesky factorisation of ``S = J M^-1 J^T`` at the stepped
+then velocities onto ``J qd = 0`` the same way. One Cholesky factorisation of ``S = J M^-1 J^T`` at the stepped
 state serves both: two simplified-Newton position iterations with that factor, then two velocity passes with
 ``J`` at the projected positions (each pass contracts the residual by the size of the position correction, i.e.
 the local error, so two passes reach round-off, which the tests measure). The projection leaves the method's order
@@ -46,27 +46,27 @@ _POSITION_ITERATIONS = 2
 _VELOCITY_PASSES = 2
 
 
-def _project_euclid(mech: Mechanism, prep: Prepared, x, xd, drive):
+def _project_euclid(mech: Mechanism, prep: Prepared, q, qd, drive):
     """Minimum-norm (``J J^T``) projection for mechanisms with a singular mass matrix (LU, 3 Gauss–Newton steps)."""
     lsq = mech.topo.least_squares
     for _ in range(3):
-        r = rows(prep, x, drive=drive)
+        r = rows(prep, q, drive=drive)
         j = jacobian(prep, r).reshape(mech.n_constraints, -1)
-        x = x - j.T @ solve_schur(factor_schur(j @ j.T, lsq), residual(prep, mech.dot_kappa, r, x))
-    r = rows(prep, x, drive=drive)
+        q = q - j.T @ solve_schur(factor_schur(j @ j.T, lsq), residual(prep, mech.dot_kappa, r, q))
+    r = rows(prep, q, drive=drive)
     j = jacobian(prep, r).reshape(mech.n_constraints, -1)
-    return x, xd - j.T @ solve_schur(factor_schur(j @ j.T, lsq), j @ xd - velocity_target(prep, r))
+    return q, qd - j.T @ solve_schur(factor_schur(j @ j.T, lsq), j @ qd - velocity_target(prep, r))
 
 
-def project_prepared(mech: Mechanism, prep: Prepared, x, xd, t=0.0):
-    """Project ``(x, xd)`` onto ``Phi(x, t) = 0`` and ``J xd = nu(t)`` (module docstring; ``t`` matters only for
+def project_prepared(mech: Mechanism, prep: Prepared, q, qd, t=0.0):
+    """Project ``(q, qd)`` onto ``Phi(q, t) = 0`` and ``J qd = nu(t)`` (module docstring; ``t`` matters only for
     driving constraints); ``prep`` from :func:`prepare`."""
     if mech.n_constraints == 0:
-        return x, xd
+        return q, qd
     drive = drive_at(mech, t)
     if mech.topo.saddle_point:
-        return _project_euclid(mech, prep, x, xd, drive)
-    r0 = r = rows(prep, x, drive=drive)
+        return _project_euclid(mech, prep, q, qd, drive)
+    r0 = r = rows(prep, q, drive=drive)
     # One factorisation at the stepped state serves every pass below (least squares: minimum-norm corrections).
     # Without least squares each pass is an ``spd_solve`` of the same S: XLA computes its factorisation once, and
     # derivatives take the solve's cheap tangent instead of going through the factorisation.
@@ -77,20 +77,20 @@ def project_prepared(mech: Mechanism, prep: Prepared, x, xd, t=0.0):
     else:
         solve = lambda rhs: spd_solve(s0, rhs)  # noqa: E731
     for _ in range(_POSITION_ITERATIONS):
-        lam = solve(residual(prep, mech.dot_kappa, r, x))
-        x = x - apply_minv_jt(prep, r0, lam).reshape(-1)
-        r = rows(prep, x, drive=drive)
+        lam = solve(residual(prep, mech.dot_kappa, r, q))
+        q = q - apply_minv_jt(prep, r0, lam).reshape(-1)
+        r = rows(prep, q, drive=drive)
     nu = velocity_target(prep, r)
     for _ in range(_VELOCITY_PASSES):
-        lam = solve(apply_j(prep, r, xd.reshape(-1, 3)) - nu)
-        xd = xd - apply_minv_jt(prep, r0, lam).reshape(-1)
-    return x, xd
+        lam = solve(apply_j(prep, r, qd.reshape(-1, 3)) - nu)
+        qd = qd - apply_minv_jt(prep, r0, lam).reshape(-1)
+    return q, qd
 
 
-def project(mech: Mechanism, x, xd, *, t=0.0, props: Prepared | None = None):
-    """Project ``(x, xd)`` onto ``Phi(x, t) = 0`` and ``J xd = nu(t)`` (mass-orthogonal corrections; ``t`` matters
+def project(mech: Mechanism, q, qd, *, t=0.0, props: Prepared | None = None):
+    """Project ``(q, qd)`` onto ``Phi(q, t) = 0`` and ``J qd = nu(t)`` (mass-orthogonal corrections; ``t`` matters
     only for driving constraints)."""
-    return project_prepared(mech, prepare(mech) if props is None else props, x, xd, t)
+    return project_prepared(mech, prepare(mech) if props is None else props, q, qd, t)
 
 
 def parameter_groups(mech: Mechanism) -> list:
@@ -118,23 +118,23 @@ def parameter_groups(mech: Mechanism) -> list:
     return [(lab, arr) for lab, arr in groups if arr.size]
 
 
-def _initial_contact(deflection, x0, xd0, xdd_free):
+def _initial_contact(deflection, q0, qd0, xdd_free):
     """Each tyre's law at the start (1.0 in contact): compressed (deflection < 0), or at exactly zero deflection
     heading into the ground: deflection rate < 0, or at rest with the free (no-contact) acceleration pressing in.
 
     A tyre that starts exactly touching (the usual assembly) must start in the law it is entering: its switching
     function starts at zero, where no sign change is ever seen, so starting it "off" let it sink unopposed."""
-    d, rate = jax.jvp(deflection, (x0,), (xd0,))
-    _, push = jax.jvp(deflection, (x0,), (xdd_free,))  # second derivative when at rest (rate = 0)
+    d, rate = jax.jvp(deflection, (q0,), (qd0,))
+    _, push = jax.jvp(deflection, (q0,), (xdd_free,))  # second derivative when at rest (rate = 0)
     entering = jnp.where(rate != 0.0, rate < 0.0, push < 0.0)
-    return jnp.where(d != 0.0, d < 0.0, entering).astype(x0.dtype)
+    return jnp.where(d != 0.0, d < 0.0, entering).astype(q0.dtype)
 
 
 @_ode.cached("simulate_mechanism")
-def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabilise, baumgarte, solve,
+def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabilise, baumgarte, solve,
               max_events=0, warn_switch=False):
     param_bad = _ode.check_finite("simulate_mechanism", parameter_groups(mech))
-    x0, xd0 = _ode.runtime_checks((x0, xd0), time_bad, param_bad, "simulate_mechanism", "(x0, xd0)")
+    q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate_mechanism", "(q0, qd0)")
     plan = chain_plan(mech) if solve == "chain" else None
     # The chain path needs only the bodies' mass blocks; the dense path its prepared constants (Prepared).
     cblocks = chain_mass_blocks(mech) if plan is not None else None
@@ -152,10 +152,10 @@ def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
 
     def field(t, y, args):
         m, p, cb = unpack(args)
-        x, xd = y
+        q, qd = y
         if plan is not None:
-            return xd, chain_accelerations(m, plan, t, x, xd, mass_blocks=cb)
-        return xd, _solve(m, p, t, x, xd, baumgarte)[0]
+            return qd, chain_accelerations(m, plan, t, q, qd, mass_blocks=cb)
+        return qd, _solve(m, p, t, q, qd, baumgarte)[0]
 
     def projection(t, y, args):
         m, p, cb = unpack(args)
@@ -163,39 +163,39 @@ def _simulate(mech, x0, xd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
             return chain_project(m, plan, *y, mass_blocks=cb)
         return project_prepared(m, p, *y, t)
 
-    def deflections(x, m, p):
-        return tyre_deflections(m, p.wk @ x.reshape(-1, 3) + p.p0)
+    def deflections(q, m, p):
+        return tyre_deflections(m, p.wk @ q.reshape(-1, 3) + p.p0)
 
     events = None
     args0 = [leaves[i] for i in arrays]
     if max_events:  # tyres switch at located events: each segment keeps every tyre's law fixed
         def field_modes(t, y, args):
             m, p, cb = unpack(args[0])
-            x, xd = y
-            return xd, _solve(m, p, t, x, xd, baumgarte, contact=args[1] > 0.5)[0]
+            q, qd = y
+            return qd, _solve(m, p, t, q, qd, baumgarte, contact=args[1] > 0.5)[0]
 
         def surfaces(t, y, args, modes):
             m, p, _ = unpack(args)
             d = deflections(y[0], m, p)
             return jnp.where(modes > 0.5, -d, d)  # positive in the current law, crossing zero downwards
 
-        modes0 = _initial_contact(lambda x: deflections(x, mech, prep), x0, xd0,
-                                  _solve(mech, prep, t0, x0, xd0, baumgarte,
+        modes0 = _initial_contact(lambda q: deflections(q, mech, prep), q0, qd0,
+                                  _solve(mech, prep, t0, q0, qd0, baumgarte,
                                          contact=jnp.zeros(len(mech.topo.tyre_names), bool))[0])
-        ts_, (xs, xds), steps, rejected, result, ok, events = _ode.integrate_events(
-            field_modes, (x0, xd0), args0, modes0, surfaces, len(mech.topo.tyre_names), max_events, t0=t0, t1=t1,
+        ts_, (qs, qds), steps, rejected, result, ok, events = _ode.integrate_events(
+            field_modes, (q0, qd0), args0, modes0, surfaces, len(mech.topo.tyre_names), max_events, t0=t0, t1=t1,
             rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg, projection=projection if stabilise else None)
     else:
-        ts_, (xs, xds), steps, rejected, result, ok = _ode.integrate(
-            field, (x0, xd0), args0, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
+        ts_, (qs, qds), steps, rejected, result, ok = _ode.integrate(
+            field, (q0, qd0), args0, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
             cfg=cfg, projection=projection if stabilise else None)
     if stabilise:
-        xs, xds = jax.lax.map(lambda tab: projection(tab[0], tab[1:], args0), (ts_, xs, xds))
+        qs, qds = jax.lax.map(lambda tab: projection(tab[0], tab[1:], args0), (ts_, qs, qds))
     if warn_switch:  # a differentiated rollout stepping across a tyre's switch: say so (derivatives are biased)
-        touching = jax.vmap(lambda x: deflections(x, mech, prep) < 0.0)(jnp.concatenate([x0[None], xs]))
+        touching = jax.vmap(lambda q: deflections(q, mech, prep) < 0.0)(jnp.concatenate([q0[None], qs]))
         jax.debug.callback(_warn_switches, jnp.any(touching[1:] != touching[:-1], axis=0),
                            names=mech.topo.tyre_names)
-    return Solution(ts=ts_, q=xs, qd=xds, steps=steps, rejected=rejected, status=result, ok=ok, events=events)
+    return Solution(ts=ts_, q=qs, qd=qds, steps=steps, rejected=rejected, status=result, ok=ok, events=events)
 
 
 def _warn_switches(changed, names):
@@ -203,23 +203,23 @@ def _warn_switches(changed, names):
 
 
 #: A driven mechanism's initial state must meet its driving rows to this fraction of the mechanism's size (and
-#: speed): a start that does not is a modelling error (e.g. the crank's speed left out of ``xd0``), not drift.
+#: speed): a start that does not is a modelling error (e.g. the crank's speed left out of ``qd0``), not drift.
 DRIVEN_START_RTOL = 1e-6
 
 
-def _check_driven_start(mech: Mechanism, x0, xd0, t0) -> None:
+def _check_driven_start(mech: Mechanism, q0, qd0, t0) -> None:
     """Refuse an initial state that violates the driving constraints at ``t0`` (concrete values only)."""
     from .constraints import constraints, velocity_constraints
 
-    if not all(_ode._concrete(v) for v in (x0, xd0, t0)) or any(
+    if not all(_ode._concrete(v) for v in (q0, qd0, t0)) or any(
             isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(mech)):
         return
     n = mech.n_constraints - len(mech.topo.drive)
-    pos = np.asarray(x0).reshape(-1, 3)
+    pos = np.asarray(q0).reshape(-1, 3)
     size = max(float(np.ptp(pos, axis=0).max()), 1.0)
-    speed = max(float(np.abs(np.asarray(xd0)).max()), 1.0)
-    res = np.asarray(constraints(mech, x0, t=float(t0)))[n:]
-    vel = np.asarray(velocity_constraints(mech, x0, xd0, t=float(t0)))[n:]
+    speed = max(float(np.abs(np.asarray(qd0)).max()), 1.0)
+    res = np.asarray(constraints(mech, q0, t=float(t0)))[n:]
+    vel = np.asarray(velocity_constraints(mech, q0, qd0, t=float(t0)))[n:]
     labels = mech.topo.drive.labels
     for what, r, tol in (("position", res, DRIVEN_START_RTOL * size), ("velocity", vel, DRIVEN_START_RTOL * speed)):
         bad = np.flatnonzero(np.abs(r) > tol)
@@ -229,12 +229,12 @@ def _check_driven_start(mech: Mechanism, x0, xd0, t0) -> None:
                              "x0, xd0 = project(mech, x0, xd0, t=t0)")
 
 
-def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver: str = "tsit5",
+def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver: str = "tsit5",
                        rtol: float = 1e-8, atol: float = 1e-10, dt0=None, saveat_ts=None, max_steps: int = 100_000,
                        stabilise: bool = True, baumgarte: float = 0.0, adjoint=None, pid=None, throw: bool = True,
                        progress: bool = False, solve: str = "dense", events: bool = False,
                        max_events: int = 16) -> Solution:
-    """Integrate the mechanism from ``(x0, xd0)``; returns a :class:`~particlesim.simulate.Solution` whose ``q``
+    """Integrate the mechanism from ``(q0, qd0)``; returns a :class:`~particlesim.simulate.Solution` whose ``q``
     and ``qd`` are particle positions and velocities ``(T, 3F)``.
 
     Compiles once per mechanism structure (its :class:`~.model.Topology` and applied-force functions) and solver
@@ -282,16 +282,16 @@ def simulate_mechanism(mech: Mechanism, x0, xd0, t0: float, t1: float, *, solver
         if baumgarte:
             raise ValueError("baumgarte terms are available with solve='dense' only")
         chain_plan(mech)  # refuses what is not a uniform chain, now
-    x0 = _ode.as_state(x0)
-    xd0 = _ode.as_state(xd0)
-    if x0.shape != (mech.n_coords,) or xd0.shape != x0.shape:
+    q0 = _ode.as_state(q0)
+    qd0 = _ode.as_state(qd0)
+    if q0.shape != (mech.n_coords,) or qd0.shape != q0.shape:
         raise ModelError(f"state must be two vectors of length {mech.n_coords} (3 x free particles), "
-                         f"got {x0.shape} and {xd0.shape}")
-    _ode.check_state((x0, xd0), ("x0", "xd0"))
+                         f"got {q0.shape} and {qd0.shape}")
+    _ode.check_state((q0, qd0), ("q0", "qd0"))
     t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
     _ode.check_finite("simulate_mechanism", parameter_groups(mech))  # eager, for concrete values
     if len(mech.topo.drive):
-        _check_driven_start(mech, x0, xd0, t0)
-    warn = not evented and bool(mech.topo.tyre_names) and _ode.differentiated((mech, x0, xd0))
-    return _simulate(mech, x0, xd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg, bool(stabilise),
+        _check_driven_start(mech, q0, qd0, t0)
+    warn = not evented and bool(mech.topo.tyre_names) and _ode.differentiated((mech, q0, qd0))
+    return _simulate(mech, q0, qd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg, bool(stabilise),
                      float(baumgarte), solve, int(max_events) if evented else 0, warn)

@@ -2,9 +2,9 @@
 alone, and the efforts the drivers must supply.
 
 With as many independent driving constraints as the mechanism has degrees of freedom (``dof = 0``) the
-constraints ``Phi(x, t) = 0`` fix the configuration at every time: at each requested time the positions solve
+constraints ``Phi(q, t) = 0`` fix the configuration at every time: at each requested time the positions solve
 ``Phi = 0`` by Newton's method (started from a second-order prediction from the previous time), the velocities
-``J xd = nu`` and the accelerations ``J xdd = gamma`` (:mod:`.constraints`). The solves use ``J^T (J J^T)^-1``, so
+``J qd = nu`` and the accelerations ``J qdd = gamma`` (:mod:`.constraints`). The solves use ``J^T (J J^T)^-1``, so
 they need no masses; with ``dof = 0`` it is ``J``'s (left) inverse. The driving efforts (torques and forces, the
 inverse dynamics of the prescribed motion) come from the multipliers of the equations of motion at each state.
 """
@@ -46,7 +46,7 @@ class KinematicSolution(eqx.Module):
 
 
 @_ode.cached("kinematic_analysis")
-def _kinematics(mech, x0, ts, tol):
+def _kinematics(mech, q0, ts, tol):
     prep = prepare(mech)
     lsq = mech.topo.least_squares
     n_drive = len(mech.topo.drive)
@@ -56,56 +56,56 @@ def _kinematics(mech, x0, ts, tol):
 
     def solve_at(t, guess):
         drive = drive_at(mech, t)
-        x = guess
+        q = guess
         for _ in range(NEWTON_ITERATIONS):
-            r = rows(prep, x, drive=drive)
+            r = rows(prep, q, drive=drive)
             j = jacobian(prep, r).reshape(mech.n_constraints, -1)
-            x = x - min_norm(j, residual(prep, mech.dot_kappa, r, x))
-        r = rows(prep, x, drive=drive)
-        res = jnp.max(jnp.abs(residual(prep, mech.dot_kappa, r, x)))
+            q = q - min_norm(j, residual(prep, mech.dot_kappa, r, q))
+        r = rows(prep, q, drive=drive)
+        res = jnp.max(jnp.abs(residual(prep, mech.dot_kappa, r, q)))
         j = jacobian(prep, r).reshape(mech.n_constraints, -1)
-        xd = min_norm(j, velocity_target(prep, r) + jnp.zeros(mech.n_constraints, x.dtype))
-        xdd = min_norm(j, gamma(prep, rows(prep, x, xd, drive)))
-        lam = _solve(mech, prep, t, x, xd, 0.0)[1]
-        return x, xd, xdd, -lam[mech.n_constraints - n_drive:], res
+        qd = min_norm(j, velocity_target(prep, r) + jnp.zeros(mech.n_constraints, q.dtype))
+        qdd = min_norm(j, gamma(prep, rows(prep, q, qd, drive)))
+        lam = _solve(mech, prep, t, q, qd, 0.0)[1]
+        return q, qd, qdd, -lam[mech.n_constraints - n_drive:], res
 
     def step(carry, t):
-        t_prev, x, xd, xdd = carry
+        t_prev, q, qd, qdd = carry
         h = t - t_prev
-        out = solve_at(t, x + h * xd + 0.5 * h**2 * xdd)
+        out = solve_at(t, q + h * qd + 0.5 * h**2 * qdd)
         return (t, *out[:3]), out
 
-    first = solve_at(ts[0], x0)
+    first = solve_at(ts[0], q0)
     _, rest = jax.lax.scan(step, (ts[0], *first[:3]), ts[1:])
-    q, qd, qdd, eff, res = (jnp.concatenate([a[None], b]) for a, b in zip(first, rest))
-    q = eqx.error_if(q, jnp.max(res) > tol, "kinematic_analysis: Newton's method did not reach the constraints at "
+    pos, vel, acc, eff, res = (jnp.concatenate([a[None], b]) for a, b in zip(first, rest))
+    pos = eqx.error_if(pos, jnp.max(res) > tol, "kinematic_analysis: Newton's method did not reach the constraints at "
                                             "every time (a time step too coarse for the motion, or the driven "
                                             "mechanism passes a singular position); give more output times")
-    return KinematicSolution(ts=ts, q=q, qd=qd, qdd=qdd, efforts=eff, residual=res)
+    return KinematicSolution(ts=ts, q=pos, qd=vel, qdd=acc, efforts=eff, residual=res)
 
 
-def kinematic_analysis(mech: Mechanism, x0, ts) -> KinematicSolution:
+def kinematic_analysis(mech: Mechanism, q0, ts) -> KinematicSolution:
     """Positions, velocities, accelerations and driver efforts of a fully driven mechanism (``dof = 0``) at the
-    increasing times ``ts``; ``x0`` an approximate configuration at ``ts[0]`` (e.g. the builder's assembly state).
+    increasing times ``ts``; ``q0`` an approximate configuration at ``ts[0]`` (e.g. the builder's assembly state).
 
     Compiles once per mechanism structure and number of output times. Raises :class:`ModelError` if the mechanism
-    is not fully driven at ``x0`` (naming its degrees of freedom) and ``ValueError`` for bad times or states."""
+    is not fully driven at ``q0`` (naming its degrees of freedom) and ``ValueError`` for bad times or states."""
     from .constraints import constraint_jacobian
 
     ts = np.asarray(ts, dtype=float)
     if ts.ndim != 1 or ts.size < 1 or not np.all(np.isfinite(ts)) or np.any(np.diff(ts) <= 0):
         raise ValueError("kinematic_analysis: ts must be a non-empty, finite, strictly increasing 1-D array")
-    x0 = _ode.as_state(x0)
-    if x0.shape != (mech.n_coords,):
-        raise ModelError(f"kinematic_analysis: x0 must have length {mech.n_coords} (3 x free particles), got "
-                         f"{x0.shape}")
-    _ode.check_state((x0,), ("x0",))
-    j = np.asarray(constraint_jacobian(mech, x0, t=float(ts[0])))
+    q0 = _ode.as_state(q0)
+    if q0.shape != (mech.n_coords,):
+        raise ModelError(f"kinematic_analysis: q0 must have length {mech.n_coords} (3 x free particles), got "
+                         f"{q0.shape}")
+    _ode.check_state((q0,), ("q0",))
+    j = np.asarray(constraint_jacobian(mech, q0, t=float(ts[0])))
     rank = int(np.sum(np.linalg.svd(j, compute_uv=False) > 1e-9 * np.abs(j).max())) if j.size else 0
     if mech.n_coords - rank:
         raise ModelError(f"kinematic_analysis: the mechanism has {mech.n_coords - rank} degree(s) of freedom left "
-                         "at x0; prescribe each with a driver (drive_angle, drive_position) or simulate it with "
+                         "at q0; prescribe each with a driver (drive_angle, drive_position) or simulate it with "
                          "simulate_mechanism")
-    pos = np.asarray(x0).reshape(-1, 3)
+    pos = np.asarray(q0).reshape(-1, 3)
     size = max(float(np.ptp(pos, axis=0).max()) if len(pos) else 1.0, 1e-12)
-    return _kinematics(mech, x0, jnp.asarray(ts), jnp.asarray(KINEMATICS_RTOL * size * max(size, 1.0)))
+    return _kinematics(mech, q0, jnp.asarray(ts), jnp.asarray(KINEMATICS_RTOL * size * max(size, 1.0)))

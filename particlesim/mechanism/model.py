@@ -24,7 +24,7 @@ Every constraint is one of two typed row kinds on points, each evaluated for all
 
 Both are at most quadratic in the coordinates, so their Jacobians and ``gamma`` are closed-form.
 
-State: ``x`` ``(3F,)``, the stacked positions of the F free particles (and ``xd`` their velocities).
+State: ``q`` ``(3F,)``, the stacked positions of the F free particles (and ``qd`` their velocities).
 
 Static (:class:`Topology`, hashable: the compile-cache key): names, index tuples, row layouts. Differentiable
 leaves: body mass, CoM, inertia and body-frame primaries, body-point positions, ground positions, row constants,
@@ -289,7 +289,7 @@ class Mechanism(eqx.Module):
             raise KeyError(f"no particle named {particle!r}") from None
 
     def free_slice(self, particle: str) -> slice:
-        """The three entries of ``x`` holding ``particle``'s position."""
+        """The three entries of ``q`` holding ``particle``'s position."""
         k = self.topo.free.index(self.index(particle))
         return slice(3 * k, 3 * k + 3)
 
@@ -306,12 +306,12 @@ class Mechanism(eqx.Module):
             raise KeyError(f"no point named {name!r}") from None
 
     # ---- positions ----
-    def all_positions(self, x: Float[Array, " 3F"]) -> Float[Array, "P 3"]:
-        """Positions of every particle (free from ``x``, ground from ``ground_xyz``), in global index order."""
-        out = jnp.zeros((self.topo.n_particles, 3), dtype=x.dtype)
-        out = out.at[np.asarray(self.topo.free, dtype=int)].set(x.reshape(-1, 3))
+    def all_positions(self, q: Float[Array, " 3F"]) -> Float[Array, "P 3"]:
+        """Positions of every particle (free from ``q``, ground from ``ground_xyz``), in global index order."""
+        out = jnp.zeros((self.topo.n_particles, 3), dtype=q.dtype)
+        out = out.at[np.asarray(self.topo.free, dtype=int)].set(q.reshape(-1, 3))
         if self.topo.ground:
-            out = out.at[np.asarray(self.topo.ground, dtype=int)].set(self.ground_xyz.astype(x.dtype))
+            out = out.at[np.asarray(self.topo.ground, dtype=int)].set(self.ground_xyz.astype(q.dtype))
         return out
 
     def point_positions(self, r: Float[Array, "P 3"]) -> Float[Array, "K 3"]:
@@ -331,23 +331,6 @@ class Mechanism(eqx.Module):
         k = len(self.topo.body_particles[b])
         return solve_particle_masses(self.body_mass[b], self.body_com[b], self.body_inertia[b],
                                      self.body_primaries[b, :k])
-
-    def scalar_mass_matrix(self) -> Float[Array, "P P"]:
-        """``sum_b L_b`` scattered on all particles, ``L_b = int lambda lambda^T dm`` the body's mass matrix in its
-        primaries (:func:`~particlesim.particles.primary_mass_matrix`; equal to ``B^T diag(m) B`` over its 10, 6
-        or 3 particles). Bodies of one kind are solved together (one vmapped solve per kind)."""
-        from .dynamics import scalar_mass_matrix
-
-        return scalar_mass_matrix(self)
-
-    def mass_matrix(self) -> Float[Array, "3F 3F"]:
-        """The constant mass matrix of the free coordinates, ``M_s[free, free] (x) I_3``."""
-        f = np.asarray(self.topo.free, dtype=int)
-        return jnp.kron(self.scalar_mass_matrix()[np.ix_(f, f)], jnp.eye(3))
-
-    def lumped_masses(self) -> Float[Array, " P"]:
-        """Per-particle mass carrying linear momentum and weight: ``m_bar`` of Attia eq. (25), summed over bodies."""
-        return jnp.sum(self.scalar_mass_matrix(), axis=1)
 
     def total_mass(self) -> Float[Array, ""]:
         return jnp.sum(self.body_mass)

@@ -52,11 +52,11 @@ def _rod_rotation(a, b):
     return jnp.broadcast_to(jnp.eye(3), vx.shape) + vx + vx @ vx / (1.0 + c)[..., None, None]
 
 
-def body_poses(mech: Mechanism, x: Float[Array, " 3F"]) -> tuple[Float[Array, "B 3 3"], Float[Array, "B 3"]]:
-    """``(R, origin)`` of every body at state ``x``: ``p_world = R p_body + origin`` (body order of
+def body_poses(mech: Mechanism, q: Float[Array, " 3F"]) -> tuple[Float[Array, "B 3 3"], Float[Array, "B 3"]]:
+    """``(R, origin)`` of every body at state ``q``: ``p_world = R p_body + origin`` (body order of
     ``mech.topo.body_names``; :meth:`Mechanism.body_index` gives a body's row)."""
-    _check_state(mech, x, "x")
-    return _poses_from_positions(mech, mech.all_positions(x))
+    _check_state(mech, q, "q")
+    return _poses_from_positions(mech, mech.all_positions(q))
 
 
 def _poses_from_positions(mech: Mechanism, r: Float[Array, "P 3"]):
@@ -84,22 +84,22 @@ def _poses_from_positions(mech: Mechanism, r: Float[Array, "P 3"]):
     return rot, org
 
 
-def body_com_positions(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, "B 3"]:
+def body_com_positions(mech: Mechanism, q: Float[Array, " 3F"]) -> Float[Array, "B 3"]:
     """World position of every body's centre of mass."""
-    rot, org = body_poses(mech, x)
+    rot, org = body_poses(mech, q)
     return jnp.einsum("bij,bj->bi", rot, mech.body_com) + org
 
 
-def body_velocities(mech: Mechanism, x: Float[Array, " 3F"], xd: Float[Array, " 3F"]
+def body_velocities(mech: Mechanism, q: Float[Array, " 3F"], qd: Float[Array, " 3F"]
                     ) -> tuple[Float[Array, "B 3"], Float[Array, "B 3"]]:
     """``(v_com, omega)`` of every body: centre-of-mass velocity and angular velocity, world frame (a rod's
     angular velocity has no component along its axis)."""
-    _check_state(mech, xd, "xd")
-    (rot, org), (rot_d, org_d) = jax.jvp(lambda y: body_poses(mech, y), (x,), (xd,))
+    _check_state(mech, qd, "qd")
+    (rot, org), (rot_d, org_d) = jax.jvp(lambda y: body_poses(mech, y), (q,), (qd,))
     omega = jax.vmap(unskew)(rot_d @ jnp.swapaxes(rot, 1, 2))
     rods = np.array([b for b, ps in enumerate(mech.topo.body_particles) if len(ps) == 2], dtype=int)
     if rods.size:  # a rod has no spin about its axis: keep u x u' only (its no-twist frame adds a path term)
-        r = mech.all_positions(x)[np.array([mech.topo.body_particles[b] for b in rods], dtype=int)]
+        r = mech.all_positions(q)[np.array([mech.topo.body_particles[b] for b in rods], dtype=int)]
         u = _unit(r[:, 1] - r[:, 0])
         w = omega[rods]
         omega = omega.at[rods].set(w - jnp.sum(w * u, axis=1, keepdims=True) * u)
@@ -107,12 +107,12 @@ def body_velocities(mech: Mechanism, x: Float[Array, " 3F"], xd: Float[Array, " 
     return v, omega
 
 
-def primary_load_forces(mech: Mechanism, b: int, x, force, torque) -> Float[Array, "k 3"]:
+def primary_load_forces(mech: Mechanism, b: int, q, force, torque) -> Float[Array, "k 3"]:
     """Forces on all of body ``b``'s primaries (ground ones too) equivalent to ``force`` at its centre of mass plus
     ``torque``: by virtual power, ``f_i = (d v_com / d v_i)^T F + (d omega / d v_i)^T tau``, with the body's
     velocities as functions of its primaries' velocities (so the forces sum to ``F`` and their moment is the
     load's)."""
-    r = mech.all_positions(x)
+    r = mech.all_positions(q)
     idx = np.asarray(mech.topo.body_particles[b], dtype=int)
 
     def vel(v_prim):
@@ -128,7 +128,7 @@ def primary_load_forces(mech: Mechanism, b: int, x, force, torque) -> Float[Arra
     return pull((jnp.asarray(force, dtype=r.dtype), jnp.asarray(torque, dtype=r.dtype)))[0]
 
 
-def body_angles(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " B"]:
+def body_angles(mech: Mechanism, q: Float[Array, " 3F"]) -> Float[Array, " B"]:
     """Rotation angle about z of every body of a planar mechanism from its given (assembly) orientation, in
     ``(-pi, pi]`` (wrapped; ``numpy.unwrap`` a trajectory), counter-clockwise positive; from the direction between
     the body's first two primaries."""
@@ -136,8 +136,8 @@ def body_angles(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " B"]:
     if not topo.planar:
         raise ModelError("body_angles: the mechanism is not planar (build it with MechanismBuilder(planar=True)); "
                          "use body_poses for spatial rotations")
-    _check_state(mech, x, "x")
-    r = mech.all_positions(x)
+    _check_state(mech, q, "q")
+    r = mech.all_positions(q)
     first = np.asarray([p[0] for p in topo.body_particles], dtype=int)
     second = np.asarray([p[1] for p in topo.body_particles], dtype=int)
     d_w = r[second] - r[first]
@@ -146,17 +146,17 @@ def body_angles(mech: Mechanism, x: Float[Array, " 3F"]) -> Float[Array, " B"]:
     return jnp.arctan2(cross, jnp.sum(d_l[:, :2] * d_w[:, :2], axis=1))
 
 
-def cut_joint_forces(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"]) -> dict[str, Array]:
-    """Reaction force of every cut joint ``cut_joint(a, b, name=...)`` at state ``(t, x, xd)``: the force ``(3,)``
+def cut_joint_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"]) -> dict[str, Array]:
+    """Reaction force of every cut joint ``cut_joint(a, b, name=...)`` at state ``(t, q, qd)``: the force ``(3,)``
     (global frame, N) that the ``b`` side exerts on point ``a`` (``b`` receives its opposite), from the joint's
-    multipliers (``M xdd + J^T lam = Q``: the rows ``e . (p_a - p_b)`` push ``a`` with ``-lam e``). A planar
+    multipliers (``M qdd + J^T lam = Q``: the rows ``e . (p_a - p_b)`` push ``a`` with ``-lam e``). A planar
     mechanism's cut joints have no z row (z force 0). With redundant rows (least-squares multipliers) the split of
     a force among redundant joints is not unique."""
     from .dynamics import accelerations_and_multipliers
 
-    _check_state(mech, x, "x")
-    _check_state(mech, xd, "xd")
-    _, lam = accelerations_and_multipliers(mech, t, x, xd)
+    _check_state(mech, q, "q")
+    _check_state(mech, qd, "qd")
+    _, lam = accelerations_and_multipliers(mech, t, q, qd)
     lin = mech.topo.linear
     lam_lin = lam[len(mech.topo.dot):]
     out: dict[str, Array] = {}
@@ -164,29 +164,29 @@ def cut_joint_forces(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array
         if len(label) < 4 or label[-4:] not in (" (x)", " (y)", " (z)"):
             continue  # not a cut-joint row (e.g. a planar mechanism's in-plane rows)
         name = label[:-4]
-        f = out.get(name, jnp.zeros(3, dtype=x.dtype))
-        out[name] = f - lam_lin[r] * jnp.asarray(axis, dtype=x.dtype)
+        f = out.get(name, jnp.zeros(3, dtype=q.dtype))
+        out[name] = f - lam_lin[r] * jnp.asarray(axis, dtype=q.dtype)
     return out
 
 
-def driver_efforts(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"]) -> dict[str, Array]:
-    """What every driver must supply at state ``(t, x, xd)`` to impose its motion: the torque (N m) about its axis
+def driver_efforts(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"]) -> dict[str, Array]:
+    """What every driver must supply at state ``(t, q, qd)`` to impose its motion: the torque (N m) about its axis
     of an angle driver, the force (N) along its axis of a position driver (positive: doing positive work when the
     driven coordinate increases), by name. From the multipliers: a driving row is scaled so that its gradient along
     the driven coordinate is one, so its effort is ``-lam``."""
     from .dynamics import accelerations_and_multipliers
 
-    _check_state(mech, x, "x")
-    _check_state(mech, xd, "xd")
+    _check_state(mech, q, "q")
+    _check_state(mech, qd, "qd")
     dr = mech.topo.drive
     if not len(dr):
         return {}
-    _, lam = accelerations_and_multipliers(mech, t, x, xd)
+    _, lam = accelerations_and_multipliers(mech, t, q, qd)
     tail = -lam[mech.n_constraints - len(dr):]
     return {name: tail[i] for i, name in enumerate(dr.names)}
 
 
-def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, " 3F"]) -> Float[Array, "B 4 3"]:
+def body_reactions(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"]) -> Float[Array, "B 4 3"]:
     """The force ``(3,)`` every body receives at each of its primaries (``mech.topo.body_particles`` order, padded
     with zeros to 4) from outside itself: its joints (the other bodies sharing the particle, the ground, cut joints,
     links, lines and prismatic joints acting on its points) and loads applied directly at a shared particle.
@@ -203,14 +203,14 @@ def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, 
     from .forces import point_forces
 
     topo = mech.topo
-    _check_state(mech, x, "x")
-    _check_state(mech, xd, "xd")
-    xdd, lam = accelerations_and_multipliers(mech, t, x, xd)
+    _check_state(mech, q, "q")
+    _check_state(mech, qd, "qd")
+    qdd, lam = accelerations_and_multipliers(mech, t, q, qd)
     n_p = topo.n_particles
     free = np.asarray(topo.free, dtype=int)
-    acc = jnp.zeros((n_p, 3), x.dtype).at[free].set(xdd.reshape(-1, 3))
-    vel = jnp.zeros((n_p, 3), x.dtype).at[free].set(xd.reshape(-1, 3))
-    pos = mech.all_positions(x)
+    acc = jnp.zeros((n_p, 3), q.dtype).at[free].set(qdd.reshape(-1, 3))
+    vel = jnp.zeros((n_p, 3), q.dtype).at[free].set(qd.reshape(-1, 3))
+    pos = mech.all_positions(q)
     # forces of the rigid-distance rows of each body, per particle, with their share
     owners: dict[int, list[int]] = {}
     prim_sets = [set(p) for p in topo.body_particles]
@@ -221,13 +221,13 @@ def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, 
             owners[r] = [k for k, ps in enumerate(prim_sets) if a in ps and b in ps]
     w = point_weights(mech)
     pts = points(topo, w, pos)
-    f_pts = point_forces(mech, t, x, xd, pts, points(topo, w, vel))
-    out = jnp.zeros((len(topo.body_names), 4, 3), x.dtype)
+    f_pts = point_forces(mech, t, q, qd, pts, points(topo, w, vel))
+    out = jnp.zeros((len(topo.body_names), 4, 3), q.dtype)
     spring_torque = {}  # body -> torque about z of its rotational spring-dampers
     if topo.rotational_names:
         from .forces import rotational_angles
 
-        th, th_dot = jax.jvp(lambda y: rotational_angles(mech, y), (x,), (xd,))
+        th, th_dot = jax.jvp(lambda y: rotational_angles(mech, y), (q,), (qd,))
         tau = mech.rotational_stiffness * (th - mech.rotational_free_angle) + mech.rotational_damping * th_dot
         for r, (ba, bb) in enumerate(topo.rotational_bodies):  # -tau on b, +tau on a (the ground takes its own)
             spring_torque[bb] = spring_torque.get(bb, 0.0) - tau[r]
@@ -240,21 +240,21 @@ def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, 
                                  mech.body_primaries[bi, :k])
         r_b = lb @ acc[idx] - jnp.sum(lb, axis=1)[:, None] * mech.gravity[None, :]
         if f_pts is not None:  # loads on the body's own points (not at particles), by their weights
-            mine = [q for q, owner in enumerate(topo.point_body) if owner == bi]
+            mine = [k for k, owner in enumerate(topo.point_body) if owner == bi]
             if mine:
                 r_b = r_b - jnp.einsum("qt,qj->tj", w[np.asarray(mine)][:, :k], f_pts[np.asarray(mine)])
         if bi in spring_torque:
-            z = jnp.zeros((), x.dtype)
-            r_b = r_b - primary_load_forces(mech, bi, x, jnp.zeros(3, x.dtype), jnp.stack([z, z, z + spring_torque[bi]]))
+            z = jnp.zeros((), q.dtype)
+            r_b = r_b - primary_load_forces(mech, bi, q, jnp.zeros(3, q.dtype), jnp.stack([z, z, z + spring_torque[bi]]))
         for ap in mech.applied:  # loads and torques on the body, on all its primaries (ground ones too)
             if isinstance(ap, BodyLoad) and bi in ap.bodies:
                 from .forces import body_load_wrenches
 
-                wrench = body_load_wrenches(mech, ap, t, x, xd).get(topo.body_names[bi])
+                wrench = body_load_wrenches(mech, ap, t, q, qd).get(topo.body_names[bi])
                 if wrench is not None:
-                    r_b = r_b - primary_load_forces(mech, bi, x, *wrench)
+                    r_b = r_b - primary_load_forces(mech, bi, q, *wrench)
             if isinstance(ap, AppliedTorque) and ap.body == bi:
-                r_b = r_b - primary_load_forces(mech, bi, x, jnp.zeros(3, x.dtype), ap.fn(t, x, xd))
+                r_b = r_b - primary_load_forces(mech, bi, q, jnp.zeros(3, q.dtype), ap.fn(t, q, qd))
         for r, bodies in owners.items():
             if bi not in bodies:
                 continue
@@ -265,7 +265,7 @@ def body_reactions(mech: Mechanism, t, x: Float[Array, " 3F"], xd: Float[Array, 
     return out
 
 
-def joint_reaction(mech: Mechanism, t, x, xd, body: str, particles) -> tuple[Array, Array]:
+def joint_reaction(mech: Mechanism, t, q, qd, body: str, particles) -> tuple[Array, Array]:
     """Net force and moment ``((3,), (3,))`` that ``body`` receives through the listed primaries of it (the
     particles of one joint: one for a spherical joint, the two axis particles of a revolute joint), the moment
     about the first of them; from :func:`body_reactions`."""
@@ -278,8 +278,8 @@ def joint_reaction(mech: Mechanism, t, x, xd, body: str, particles) -> tuple[Arr
         if i not in prim:
             raise ModelError(f"joint_reaction: particle '{n}' is not a primary of body '{body}'")
         slots.append(prim.index(i))
-    react = body_reactions(mech, t, x, xd)[b]
-    pos = mech.all_positions(x)[np.asarray(prim, dtype=int)]
+    react = body_reactions(mech, t, q, qd)[b]
+    pos = mech.all_positions(q)[np.asarray(prim, dtype=int)]
     f = jnp.sum(react[np.asarray(slots)], axis=0)
     m = jnp.sum(jnp.cross(pos[np.asarray(slots)] - pos[slots[0]][None], react[np.asarray(slots)]), axis=0)
     return f, m

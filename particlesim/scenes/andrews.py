@@ -93,7 +93,7 @@ def _rod(m: float, com2: np.ndarray, j: float, p: np.ndarray, q: np.ndarray) -> 
 
 
 def andrews_mechanism(q0=Q0, planar: bool = False):
-    """Build the mechanism at joint angles ``q0`` (at rest); returns ``(mech, x0)``. ``planar=True`` builds it as a
+    """Build the mechanism at joint angles ``q0`` (at rest); returns the mechanism and its particle state. ``planar=True`` builds it as a
     planar mechanism (:class:`~particlesim.mechanism.MechanismBuilder` ``planar``: one degree of freedom, no
     out-of-plane freedoms); by default it lives in 3-D, as the benchmarks time it."""
     c = CONST
@@ -123,7 +123,7 @@ class _Motor:
     def __init__(self, mom: float):
         self.mom = float(mom)
 
-    def __call__(self, t, x, xd):
+    def __call__(self, t, q, qd):
         return jnp.array([0.0, 0.0, self.mom])
 
     def __eq__(self, other):
@@ -141,12 +141,12 @@ def _rate(v, vd):
     return (v[..., 0] * vd[..., 1] - v[..., 1] * vd[..., 0]) / np.sum(v * v, axis=-1)
 
 
-def joint_angles(mech, xs, xds):
+def joint_angles(mech, qs, qds):
     """The benchmark's joint angles and rates ``(n, 7)`` each from particle states ``(n, 3F)`` (a time series
     from the start, so that the crank angles are unwrapped continuously)."""
-    xs, xds = np.atleast_2d(np.asarray(xs)), np.atleast_2d(np.asarray(xds))
-    return angles_from_points(*(xs[:, mech.free_slice(n)][:, :2] for n in "FEGH"),
-                              *(xds[:, mech.free_slice(n)][:, :2] for n in "FEGH"))
+    qs, qds = np.atleast_2d(np.asarray(qs)), np.atleast_2d(np.asarray(qds))
+    return angles_from_points(*(qs[:, mech.free_slice(n)][:, :2] for n in "FEGH"),
+                              *(qds[:, mech.free_slice(n)][:, :2] for n in "FEGH"))
 
 
 def angles_from_points(f, e, g, h, fd, ed, gd, hd):

@@ -83,12 +83,12 @@ def _particles(g: ChainGeometry):
 
 
 def chain_mechanism(g: ChainGeometry, gravity=(0.0, 0.0, -9.81)):
-    """The particle mechanism of the chain; returns ``(mech, x0)``."""
+    """The particle mechanism of the chain; returns ``(mech, q0)``."""
     parts, prims = _particles(g)
     mb = MechanismBuilder(gravity=gravity)
     ground = {"J0"} if g.joint == "spherical" else {"J0-", "J0+"}
-    for nm, (x, _) in parts.items():
-        (mb.ground if nm in ground else mb.particle)(nm, x)
+    for nm, (q, _) in parts.items():
+        (mb.ground if nm in ground else mb.particle)(nm, q)
     for j in range(g.n):
         mb.body(f"link{j + 1}", _box(), prims[j], pose=(g.rotations[j], g.origins[j]), on_negative="ignore")
     dof = (3 if g.joint == "spherical" else 1) * g.n

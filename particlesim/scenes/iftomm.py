@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..inertia import RigidInertia
-from ..mechanism import MechanismBuilder
+from ..mechanism import MechanismBuilder, scalar_mass_matrix
 
 __all__ = ["A01", "a01_pendulum", "A02", "a02_four_bar", "a02_reduced", "A04", "a04_bricard", "AXIS_OFFSET",
            "A05", "a05_flyball", "flyball_slider_height", "angular_momentum_z", "CRANK", "slider_crank",
@@ -45,7 +45,7 @@ A01 = dict(mass=1.0, length=1.0, g=9.81, t_end=2000.0, outputs=4000)
 
 
 def a01_pendulum(mass: float = A01["mass"], length: float = A01["length"], g: float = A01["g"]):
-    """The A01 pendulum; returns ``(mech, x0)`` (x0: the bob at (length, 0, 0), the link horizontal)."""
+    """The A01 pendulum; returns ``(mech, q0)`` (q0: the bob at (length, 0, 0), the link horizontal)."""
     mb = MechanismBuilder(gravity=(0.0, -g, 0.0))
     mb.ground("O", (0.0, 0.0, 0.0))
     mb.particle("P1", (length, 0.0, 0.0))
@@ -59,7 +59,7 @@ A02 = dict(n=40, length=1.0, mass=1.0, g=9.81, t_end=20.0, outputs=400)
 
 
 def a02_four_bar(n: int = A02["n"], g: float = A02["g"]):
-    """The A02 N-four-bar at t = 0; returns ``(mech, x0, xd0)`` (every crank top moving at +1 m/s along x).
+    """The A02 N-four-bar at t = 0; returns ``(mech, q0, qd0)`` (every crank top moving at +1 m/s along x).
 
     Unit squares: ground pivots ``A{i} = (i, 0)``, crank tops ``B{i} = (i, 1)``, ``i = 0..n``; crank ``i`` is the rod
     ``A{i}-B{i}``, coupler ``i`` (1..n) the rod ``B{i-1}-B{i}``."""
@@ -75,9 +75,9 @@ def a02_four_bar(n: int = A02["n"], g: float = A02["g"]):
     for i in range(1, n + 1):
         mb.body(f"coupler{i}", RigidInertia.slender_rod(1.0, (i - 1, 1.0, 0.0), (i, 1.0, 0.0), name=f"coupler{i}"),
                 [f"B{i - 1}", f"B{i}"])
-    mech, x0 = mb.build(dof=1 + (n + 1), multipliers="least_squares")  # in-plane 1, out-of-plane one per crank top
-    xd0 = np.tile([1.0, 0.0, 0.0], n + 1)
-    return mech, x0, xd0
+    mech, q0 = mb.build(dof=1 + (n + 1), multipliers="least_squares")  # in-plane 1, out-of-plane one per crank top
+    qd0 = np.tile([1.0, 0.0, 0.0], n + 1)
+    return mech, q0, qd0
 
 
 def a02_reduced(n: int = A02["n"], g: float = A02["g"]) -> tuple[float, float]:
@@ -96,7 +96,7 @@ _BRICARD_AXES = np.eye(3)[[1, 2, 0, 1, 2, 0]]  # P1 y, P2 z, P3 x, P4 y, P5 z, P
 
 
 def a04_bricard(g: float = A04["g"]):
-    """Bricard's linkage (A04) at rest in its initial position; returns ``(mech, x0)``. Joint ``i`` (1..6) sits at
+    """Bricard's linkage (A04) at rest in its initial position; returns ``(mech, q0)``. Joint ``i`` (1..6) sits at
     ``P{i}`` with axis particle ``P{i}a = P{i} + AXIS_OFFSET * axis``; rod ``i`` runs ``P{i} -> P{i+1}``; joints 1 and
     6 are on the ground. P3, the point the benchmark reports, is the particle ``P3``."""
     c = A04
@@ -133,7 +133,7 @@ def _prism(mass, sides, axis):
 
 
 def a05_flyball(g: float = A05["g"]):
-    """The A05 flyball governor at t = 0; returns ``(mech, x0, xd0)`` (everything turning with the shaft at 2π rad/s).
+    """The A05 flyball governor at t = 0; returns ``(mech, q0, qd0)`` (everything turning with the shaft at 2π rad/s).
 
     Particles: the shaft holds ground particles ``O`` (bottom) and ``T`` (top) on its axis and the pin particles
     ``P1``, ``P1y`` of rod 1's hinge (``P1`` = (0.05, 0, 1), ``P1y`` one offset along the pin axis y); rod 2 is hinged
@@ -185,11 +185,11 @@ def a05_flyball(g: float = A05["g"]):
     mb.prismatic(("O", "T", "P1"), ("B0", "B1", "Bx"), name="slider on shaft")
     for i, at in ((1, "Bx"), (2, "Bm")):
         mb.spring_damper(f"spring{i}", at, f"M{i}", c["stiffness"], c["damping"], c["free_length"])
-    mech, x0 = mb.build(dof=4)
+    mech, q0 = mb.build(dof=4)
     w = c["omega0"]
-    xyz = np.asarray(x0).reshape(-1, 3)
-    xd0 = (w * np.stack([-xyz[:, 1], xyz[:, 0], np.zeros(len(xyz))], axis=1)).reshape(-1)
-    return mech, x0, xd0
+    xyz = np.asarray(q0).reshape(-1, 3)
+    qd0 = (w * np.stack([-xyz[:, 1], xyz[:, 0], np.zeros(len(xyz))], axis=1)).reshape(-1)
+    return mech, q0, qd0
 
 
 def _shift(r):
@@ -198,23 +198,23 @@ def _shift(r):
     return (r @ r) * np.eye(3) - np.outer(r, r)
 
 
-def flyball_slider_height(mech, x):
-    """The slider's centre height ``s`` from states ``x`` ``(..., 3F)``."""
+def flyball_slider_height(mech, q):
+    """The slider's centre height ``s`` from states ``q`` ``(..., 3F)``."""
     import jax.numpy as jnp
 
-    x = jnp.asarray(x)
-    b0, b1 = x[..., mech.free_slice("B0")], x[..., mech.free_slice("B1")]
+    q = jnp.asarray(q)
+    b0, b1 = q[..., mech.free_slice("B0")], q[..., mech.free_slice("B1")]
     return 0.5 * (b0[..., 2] + b1[..., 2])
 
 
-def angular_momentum_z(mech, x, xd):
+def angular_momentum_z(mech, q, qd):
     """Angular momentum about the z axis through the origin, ``sum_ij M_ij (x_i v_yj - y_i v_xj)`` over the
     particles (exact for the equivalent particle sets, whose momenta equal the bodies'); ground particles are at
     rest and on the axis here."""
     import jax.numpy as jnp
 
-    m = mech.scalar_mass_matrix()[np.ix_(mech.free, mech.free)]
-    r, v = jnp.asarray(x).reshape(-1, 3), jnp.asarray(xd).reshape(-1, 3)
+    m = scalar_mass_matrix(mech)[np.ix_(mech.free, mech.free)]
+    r, v = jnp.asarray(q).reshape(-1, 3), jnp.asarray(qd).reshape(-1, 3)
     return jnp.sum(m * (r[:, None, 0] * v[None, :, 1] - r[:, None, 1] * v[None, :, 0]))
 
 
@@ -225,7 +225,7 @@ CRANK = dict(l1=0.15, l2=0.30, m1=0.36, m2=0.151104, m3=0.075552, j1=0.002727, j
 
 
 def slider_crank(omega: float = CRANK["omega"]):
-    """The driven rigid slider-crank (planar); returns ``(mech, x0)`` at ``t = 0`` (crank along +x, the dead
+    """The driven rigid slider-crank (planar); returns ``(mech, q0)`` at ``t = 0`` (crank along +x, the dead
     centre). The crank turns as ``omega * t`` (driver ``"crank"``); the slider's block is a rod along the guide
     (``B``–``B'``) with the block's mass at ``B``."""
     c = CRANK

@@ -52,8 +52,8 @@ def _global(point: str) -> np.ndarray:
     body, xi, eta = POINTS[point]
     if body is None:
         return np.array([xi, eta, 0.0])
-    _, _, x0, y0, phi = BODIES[body]
-    return np.array([x0, y0, 0.0]) + _rot(phi) @ np.array([xi, eta, 0.0])
+    _, _, q0, y0, phi = BODIES[body]
+    return np.array([q0, y0, 0.0]) + _rot(phi) @ np.array([xi, eta, 0.0])
 
 
 def aa_mechanism(*, spring=None, tyre=None, masses=None):
@@ -69,13 +69,13 @@ def aa_mechanism(*, spring=None, tyre=None, masses=None):
     mb.particle("B", _global("B3"))
     mb.particle("C", np.array([BODIES["wheel"][2], BODIES["wheel"][3], 0.0]))
     for name, parts in (("lower_arm", ["Q", "A"]), ("upper_arm", ["O", "B"]), ("wheel", ["A", "B", "C"])):
-        m, j, x0, y0, phi = BODIES[name]
+        m, j, q0, y0, phi = BODIES[name]
         m = masses.get(name, m)
         if name == "wheel":
             inertia = RigidInertia(m, np.zeros(3), np.diag([j / 2, j / 2, j]), degenerate_ok=True, name=name)
         else:
             inertia = RigidInertia(m, np.zeros(3), np.diag([0.0, j, j]), degenerate_ok=True, name=name)
-        mb.body(name, inertia, parts, pose=(_rot(phi), np.array([x0, y0, 0.0])), on_negative="ignore")
+        mb.body(name, inertia, parts, pose=(_rot(phi), np.array([q0, y0, 0.0])), on_negative="ignore")
     mb.point("E", "lower_arm", _global("E1"))
     mb.point(WHEEL_COM, "wheel", np.array([BODIES["wheel"][2], BODIES["wheel"][3], 0.0]))
     mb.spring_damper("suspension", "E", "F", spring["stiffness"], spring["damping"], spring["free_length"])

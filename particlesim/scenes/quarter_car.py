@@ -125,7 +125,7 @@ def joint_primaries() -> dict[str, np.ndarray]:
 
 
 def quarter_car(*, spring=None, tyre=None, masses=None):
-    """The quarter-car mechanism (3 degrees of freedom); returns ``(mech, x0)``. Optional overrides of the spring
+    """The quarter-car mechanism (3 degrees of freedom); returns ``(mech, q0)``. Optional overrides of the spring
     and tyre constants and body masses (dicts keyed like :data:`SPRING`, :data:`TYRE`, :data:`TABLE1`)."""
     from ..mechanism import MechanismBuilder
 

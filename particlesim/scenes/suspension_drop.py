@@ -18,7 +18,7 @@ DROP = dict(mc=250.0, mw=35.0, k=2.0e4, c=4.0e2, kt=1.5e5, ct=100.0, radius=0.3,
 
 
 def suspension_drop():
-    """``(mech, x0)``: the suspension at its release heights (particles ``C`` chassis, ``W`` wheel centre)."""
+    """``(mech, q0)``: the suspension at its release heights (particles ``C`` chassis, ``W`` wheel centre)."""
     d = DROP
     mb = MechanismBuilder(planar=True, gravity=(0.0, -d["g"]))
     mb.ground("G0", (0.0, 0.0))

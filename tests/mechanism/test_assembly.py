@@ -54,11 +54,11 @@ def test_assemble_sets_a_crank_angle_and_the_loop_follows(four_bar):
         x[mech.free_slice("A")] = (np.sin(theta), np.cos(theta), 0.0)  # crank |OA| = 1 turned by theta
         asm = assemble(mech, x, hold=["A"])
         assert asm.residual <= RESIDUAL_TOL
-        a = asm.x[mech.free_slice("A")]
+        a = asm.q[mech.free_slice("A")]
         np.testing.assert_array_equal(a, x[mech.free_slice("A")])
         expect = _circle_intersection(a[:2], 2.0, (2, 0), 1.0, near=(2, 1))
-        np.testing.assert_allclose(asm.x[mech.free_slice("B")][:2], expect, atol=POSITION_TOL)
-        np.testing.assert_allclose(asm.correction, asm.x - x)
+        np.testing.assert_allclose(asm.q[mech.free_slice("B")][:2], expect, atol=POSITION_TOL)
+        np.testing.assert_allclose(asm.correction, asm.q - x)
 
 
 def test_single_coordinates_can_be_held(four_bar):
@@ -83,7 +83,7 @@ def test_bad_holds(hold, match, four_bar):
 
 def test_bad_state(four_bar):
     mech, x0 = four_bar().build()
-    with pytest.raises(ModelError, match="x must be 9 finite numbers"):
+    with pytest.raises(ModelError, match="q must be 9 finite numbers"):
         assemble(mech, np.full(9, np.nan))
-    with pytest.raises(ModelError, match="x must be 9 finite numbers"):
+    with pytest.raises(ModelError, match="q must be 9 finite numbers"):
         assemble(mech, x0[:6])

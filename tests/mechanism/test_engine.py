@@ -2,7 +2,7 @@
 
 The reference here shares nothing with :mod:`particlesim.mechanism._algebra` but the model: its constraint Jacobian
 and ``gamma`` come from forward-mode differentiation of :func:`~particlesim.mechanism.constraints`, its mass matrix
-from :meth:`Mechanism.mass_matrix` (the bodies' particle masses), its forces from
+from :func:`~particlesim.mechanism.mass_matrix` (the bodies' particle masses), its forces from
 :func:`~particlesim.mechanism.generalized_forces`, and the system ``[[M, J^T], [J, 0]]`` is solved by LU. Also: the
 saddle-point fallback (for singular mass matrices) agrees with both.
 """
@@ -14,7 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from particlesim.mechanism import (accelerations_and_multipliers, constraints, generalized_forces, project)
+from particlesim.mechanism import (accelerations_and_multipliers, constraints, generalized_forces, mass_matrix,
+                                   project)
 from particlesim.scenes.chains import chain_geometry, chain_mechanism
 from particlesim.scenes.nikravesh import aa_mechanism
 from particlesim.scenes.quarter_car import quarter_car
@@ -40,7 +41,7 @@ SCENES = {
 def _reference(mech, x, xd):
     j = jax.jacfwd(lambda y: constraints(mech, y))(x)
     gamma = -jax.jvp(lambda y: jax.jvp(lambda z: constraints(mech, z), (y,), (xd,))[1], (x,), (xd,))[1]
-    m = mech.mass_matrix()
+    m = mass_matrix(mech)
     q = generalized_forces(mech, 0.0, x, xd)
     n, c = m.shape[0], j.shape[0]
     sol = jnp.linalg.solve(jnp.block([[m, j.T], [j, jnp.zeros((c, c))]]), jnp.concatenate([q, gamma]))

@@ -113,7 +113,7 @@ def test_spherical_chain_bodies_match_mujoco():
 
 def test_wrong_state_shapes_are_refused():
     (mech, x0), _ = _three_kinds()
-    with pytest.raises(ModelError, match=r"x must have shape \(27,\)"):
+    with pytest.raises(ModelError, match=r"q must have shape \(27,\)"):
         body_poses(mech, jnp.zeros(26))
-    with pytest.raises(ModelError, match=r"xd must have shape \(27,\)"):
+    with pytest.raises(ModelError, match=r"qd must have shape \(27,\)"):
         body_velocities(mech, jnp.asarray(x0), jnp.zeros((27, 1)))
