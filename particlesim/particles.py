@@ -73,7 +73,7 @@ PAIRS: dict[str, tuple[tuple[int, int], ...]] = {
 #: A placement is refused as singular when the smallest singular value of its edge vectors falls below this
 #: fraction of the largest (or two primaries are closer than this fraction of the placement's size). With
 #: ``kappa`` the ratio largest/smallest, the particle masses grow like ``kappa**2`` and the mass, first moment and
-#: inertia are reproduced to about ``kappa**2 * eps`` relative (measured in ``tests/test_hard_cases.py``): 1e-5
+#: inertia are reproduced to about ``kappa**2 * eps`` relative (measured in ``tests/hard_cases/test_stiff_and_singular.py``): 1e-5
 #: keeps that error below ~2e-6, where 1e-8 let through placements whose moments were wrong by 15 %.
 PLACEMENT_RTOL = 1e-5
 #: Particle masses below ``-NEGATIVE_MASS_RTOL * m`` count as negative (smaller ones are round-off).

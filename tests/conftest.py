@@ -1,4 +1,5 @@
-"""Test configuration: float64, strict promotion, the reference-data folder."""
+"""Test configuration: float64, strict promotion, the reference-data folder. Helpers shared across folders live
+beside this file (``tree_helpers.py``), which pytest puts on the import path."""
 
 import jax
 import pytest
@@ -14,3 +15,8 @@ from particlesim.data import data_dir  # noqa: E402
 def shared_data():
     """Path to ``../shared/data`` (skips nothing: the data are part of CI)."""
     return data_dir()
+
+
+@pytest.fixture(scope="session")
+def krang_urdf_dir(shared_data):
+    return shared_data / "krang" / "urdf"

@@ -10,8 +10,8 @@ and a case that cannot be handled must fail loudly (an exception or ``ok = False
    placement, and a :class:`PlacementError` naming the body beyond the threshold.
 3. float32 against float64 (Krang forward dynamics and a 1 s rollout): the error is measured and bounded.
 
-Krang at a singular pose, over 100 s and spinning fast: ``tests/tree/test_krang_hard_cases.py``; mechanisms
-(fast spin, 100 s, 64-body chains): ``tests/mechanism/test_mechanism_hard_cases.py``.
+Krang at a singular pose, over 100 s and spinning fast: ``tests/hard_cases/test_hard_krang.py``; mechanisms
+(fast spin, 100 s, 64-body chains): ``tests/hard_cases/test_hard_mechanisms.py``.
 """
 
 import warnings

@@ -1,0 +1,80 @@
+"""Frame algebra (``particlesim.spatial``) against SciPy's rotations, cross products and the defining properties."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from jax.test_util import check_grads
+from scipy.spatial.transform import Rotation
+
+from particlesim.spatial import (frame_from_points, quaternion_to_matrix, rot_x, rot_y, rot_z, rpy_to_matrix, skew,
+                                 unit_axis_rotations, unskew)
+
+ATOL = 1e-14  # one rotation or cross product: round-off
+GRAD_EPS = 1e-6  # check_grads step (float64)
+
+seeds = st.integers(0, 2**31 - 1)
+
+
+@given(seeds)
+@settings(max_examples=10, deadline=None)
+def test_skew_is_the_cross_product_and_unskew_inverts_it(seed):
+    a, b = np.random.default_rng(seed).normal(size=(2, 3))
+    np.testing.assert_allclose(skew(a) @ b, np.cross(a, b), rtol=0, atol=ATOL * 10)
+    np.testing.assert_allclose(unskew(skew(a)), a, rtol=0, atol=ATOL)
+    m = np.random.default_rng(seed + 1).normal(size=(3, 3))
+    np.testing.assert_allclose(unskew(m), unskew(0.5 * (m - m.T)), rtol=0, atol=ATOL)  # the skew part only
+
+
+@given(seeds)
+@settings(max_examples=10, deadline=None)
+def test_elementary_and_rpy_rotations_match_scipy(seed):
+    rpy = np.random.default_rng(seed).uniform(-np.pi, np.pi, 3)
+    for fn, axis, angle in ((rot_x, "x", rpy[0]), (rot_y, "y", rpy[1]), (rot_z, "z", rpy[2])):
+        np.testing.assert_allclose(fn(angle), Rotation.from_euler(axis, angle).as_matrix(), rtol=0, atol=ATOL)
+    # URDF roll-pitch-yaw: fixed axes x, then y, then z (SciPy's extrinsic "xyz")
+    np.testing.assert_allclose(rpy_to_matrix(rpy), Rotation.from_euler("xyz", rpy).as_matrix(), rtol=0, atol=ATOL)
+
+
+@given(seeds)
+@settings(max_examples=10, deadline=None)
+def test_axis_angle_rotations_match_scipy_rotation_vectors(seed):
+    rng = np.random.default_rng(seed)
+    axes = rng.normal(size=(5, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = rng.uniform(-4.0, 4.0, 5)
+    expected = Rotation.from_rotvec(axes * angles[:, None]).as_matrix()
+    np.testing.assert_allclose(unit_axis_rotations(axes, angles), expected, rtol=0, atol=ATOL)
+
+
+@given(seeds)
+@settings(max_examples=10, deadline=None)
+def test_quaternion_rotation_matches_scipy_and_normalises(seed):
+    rng = np.random.default_rng(seed)
+    quat = rng.normal(size=4)  # [x, y, z, w], any length
+    expected = Rotation.from_quat(quat / np.linalg.norm(quat)).as_matrix()  # SciPy: scalar last
+    np.testing.assert_allclose(quaternion_to_matrix(quat), expected, rtol=0, atol=ATOL)
+    np.testing.assert_allclose(quaternion_to_matrix(3.7 * quat), expected, rtol=0, atol=ATOL)
+
+
+def test_frame_from_points_is_right_handed_and_spans_the_points():
+    p0, p1, p2 = np.array([0.3, -0.2, 1.0]), np.array([1.1, 0.4, 0.7]), np.array([-0.5, 0.9, 0.2])
+    f = np.asarray(frame_from_points(p0, p1, p2))
+    np.testing.assert_allclose(f.T @ f, np.eye(3), rtol=0, atol=ATOL)
+    assert np.linalg.det(f) > 0
+    np.testing.assert_allclose(f[:, 0], (p1 - p0) / np.linalg.norm(p1 - p0), rtol=0, atol=ATOL)
+    assert abs((p2 - p0) @ f[:, 2]) < ATOL  # p2 lies in the plane of e1 and e2
+    assert (p2 - p0) @ f[:, 1] > 0
+
+
+def test_rotation_gradients_fwd_and_rev():
+    """Derivatives against finite differences, including the zero angle of the axis-angle map (no division)."""
+    check_grads(jax.jit(rpy_to_matrix), (jnp.array([0.3, -1.1, 2.0]),), order=1, modes=("fwd", "rev"), eps=GRAD_EPS)
+    check_grads(jax.jit(quaternion_to_matrix), (jnp.array([0.1, -0.4, 0.3, 0.8]),), order=1, modes=("fwd", "rev"),
+                eps=GRAD_EPS)
+    axes = jnp.array([[0.0, 0.6, 0.8], [1.0, 0.0, 0.0]])
+    rotations = jax.jit(lambda t: unit_axis_rotations(axes, t))
+    for angles in (jnp.array([0.7, -2.0]), jnp.zeros(2)):
+        check_grads(rotations, (angles,), order=1, modes=("fwd", "rev"), eps=GRAD_EPS)
+    assert np.all(np.isfinite(jax.jacfwd(lambda t: unit_axis_rotations(axes, t))(jnp.zeros(2))))
