@@ -20,13 +20,14 @@ point in the whitened metric and :func:`._fit.fit_consistent` gives the least-sq
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
-from ._fit import CompressedLSQ, _lm_starts, check_start, params_from_theta
+from ._fit import CompressedLSQ, MultiStart, _lm_starts, check_start, params_from_theta
 from ._regressor import column_scale, identifiable_basis
 
 __all__ = ["BaseParameters", "base_parameters", "BaseFit", "fit_base_consistent"]
@@ -52,7 +53,8 @@ def base_parameters(lsq: CompressedLSQ, *, rtol: float = 1e-6) -> BaseParameters
     return BaseParameters(basis, (u[:, :rank].T @ y) / s[:rank], s[:rank])
 
 
-class BaseFit(NamedTuple):
+@dataclasses.dataclass(frozen=True)
+class BaseFit(MultiStart):
     """Per start: ``theta (S, p)``, ``pi (S, p)``, ``rel_residual (S,) = ||E^T pi - beta_hat|| / ||beta_hat||``,
     LM ``steps (S,)``; ``best`` is the start with the smallest residual."""
 
@@ -61,10 +63,6 @@ class BaseFit(NamedTuple):
     rel_residual: np.ndarray
     steps: np.ndarray
     best: int
-
-    @property
-    def best_pi(self) -> np.ndarray:
-        return self.pi[self.best]
 
 
 def fit_base_consistent(lsq: CompressedLSQ, theta0: Float[ArrayLike, "S p"], *, rtol: float = 1e-6,

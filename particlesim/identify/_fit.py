@@ -14,6 +14,7 @@ iteration. :func:`torque_residuals` is the uncompressed form through :func:`part
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import NamedTuple, Optional
 
@@ -79,15 +80,8 @@ def compress(w: Float[ArrayLike, "N n p"], tau: Float[ArrayLike, "N n"], mask=No
     return CompressedLSQ(jnp.asarray(r), jnp.asarray(y), jnp.asarray(rest), int(b.size))
 
 
-class FitResult(NamedTuple):
-    """Multi-start result: per start ``theta (S, 13n)``, ``pi (S, 13n)``, fitted RMSE ``(S,)``, ``steps``;
-    ``best`` is the index of the lowest RMSE."""
-
-    theta: np.ndarray
-    pi: np.ndarray
-    rmse: np.ndarray
-    steps: np.ndarray
-    best: int
+class MultiStart:
+    """Results of one fit per start (abstract): ``theta``, ``pi`` rows per start and the index ``best``."""
 
     @property
     def best_pi(self) -> np.ndarray:
@@ -96,6 +90,18 @@ class FitResult(NamedTuple):
     @property
     def best_theta(self) -> np.ndarray:
         return self.theta[self.best]
+
+
+@dataclasses.dataclass(frozen=True)
+class FitResult(MultiStart):
+    """Multi-start result: per start ``theta (S, 13n)``, ``pi (S, 13n)``, fitted RMSE ``(S,)``, ``steps``;
+    ``best`` is the index of the lowest RMSE."""
+
+    theta: np.ndarray
+    pi: np.ndarray
+    rmse: np.ndarray
+    steps: np.ndarray
+    best: int
 
 
 def _entry(i: int, n: int) -> str:

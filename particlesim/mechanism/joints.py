@@ -97,14 +97,11 @@ def _indices(joint: Joint, bd) -> tuple[int, ...]:
     return tuple(bd.pidx(n, joint.label) for n in joint.names)
 
 
-@dataclasses.dataclass(frozen=True)
-class Link(Joint):
-    """A massless rigid link: ``|p_a - p_b|`` constant (the assembly distance unless ``length`` is given)."""
+class _PointPair(Joint):
+    """A joint between two particles or points ``a`` and ``b`` (abstract: its rows are the final class's)."""
 
     a: str
     b: str
-    label: str
-    length: Optional[float] = None
 
     @property
     def names(self) -> tuple:
@@ -113,6 +110,16 @@ class Link(Joint):
     def plan(self, bd) -> LinePlan:
         _checked(self, bd)
         return LinePlan()
+
+
+@dataclasses.dataclass(frozen=True)
+class Link(_PointPair):
+    """A massless rigid link: ``|p_a - p_b|`` constant (the assembly distance unless ``length`` is given)."""
+
+    a: str
+    b: str
+    label: str
+    length: Optional[float] = None
 
     def rows(self, bd, plan) -> None:
         ka, kb = _indices(self, bd)
@@ -121,20 +128,12 @@ class Link(Joint):
 
 
 @dataclasses.dataclass(frozen=True)
-class CutJoint(Joint):
+class CutJoint(_PointPair):
     """A cut joint closing a loop: ``p_a = p_b`` (three linear rows; two in a plane)."""
 
     a: str
     b: str
     label: str
-
-    @property
-    def names(self) -> tuple:
-        return (self.a, self.b)
-
-    def plan(self, bd) -> LinePlan:
-        _checked(self, bd)
-        return LinePlan()
 
     def rows(self, bd, plan) -> None:
         ka, kb = _indices(self, bd)

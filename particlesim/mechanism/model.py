@@ -228,6 +228,14 @@ class BodyState(eqx.Module):
     angular_velocity: dict
 
 
+def _lookup(names: tuple[str, ...], name: str, what: str, *, choices: str = "") -> int:
+    """Index of ``name`` among ``names``; ``KeyError`` naming it (and listing them as ``choices`` when given)."""
+    try:
+        return names.index(name)
+    except ValueError:
+        raise KeyError(f"no {what} named {name!r}" + (f"; {choices}: {list(names)}" if choices else "")) from None
+
+
 class Mechanism(eqx.Module):
     """A mechanism in particle coordinates; build it with :class:`~particlesim.mechanism.MechanismBuilder`."""
 
@@ -283,10 +291,7 @@ class Mechanism(eqx.Module):
         return len(self.topo.dot) + len(self.topo.linear) + len(self.topo.drive)
 
     def index(self, particle: str) -> int:
-        try:
-            return self.topo.particle_names.index(particle)
-        except ValueError:
-            raise KeyError(f"no particle named {particle!r}") from None
+        return _lookup(self.topo.particle_names, particle, "particle")
 
     def free_slice(self, particle: str) -> slice:
         """The three entries of ``q`` holding ``particle``'s position."""
@@ -294,16 +299,10 @@ class Mechanism(eqx.Module):
         return slice(3 * k, 3 * k + 3)
 
     def body_index(self, name: str) -> int:
-        try:
-            return self.topo.body_names.index(name)
-        except ValueError:
-            raise KeyError(f"no body named {name!r}; bodies: {list(self.topo.body_names)}") from None
+        return _lookup(self.topo.body_names, name, "body", choices="bodies")
 
     def point_index(self, name: str) -> int:
-        try:
-            return self.topo.point_names.index(name)
-        except ValueError:
-            raise KeyError(f"no point named {name!r}") from None
+        return _lookup(self.topo.point_names, name, "point")
 
     # ---- positions ----
     def all_positions(self, q: Float[Array, " 3F"]) -> Float[Array, "P 3"]:

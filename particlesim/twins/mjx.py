@@ -35,8 +35,8 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-__all__ = ["RK4_TABLEAU", "integrate_pos", "rk4_step", "rk4_rollout", "chain_rollout", "quarter_car_rollout",
-           "forced_rk4_rollout"]
+__all__ = ["RK4_TABLEAU", "integrate_pos", "rk4_step", "rk4_rollout", "tyre_forward", "connect_residual",
+           "chain_rollout", "quarter_car_rollout", "forced_rk4_rollout"]
 
 #: MuJoCo's RK4: (stage offset a_i, weight b_i).
 RK4_TABLEAU = np.array([[0.0, 1 / 6], [0.5, 1 / 3], [0.5, 1 / 3], [1.0, 1 / 6]])
@@ -110,6 +110,36 @@ def _start(m: mujoco.MjModel, mx):
         return jax.jit(mjx.forward)(mx, mjx.put_data(m, mujoco.MjData(m)))
 
 
+def tyre_forward(wheel_body: int, axis: int, ground: float, tyre: dict) -> Callable:
+    """``forward(mx, d)``: ``mjx.forward`` with the one-sided tyre on body ``wheel_body``'s origin (the wheel centre)
+    along world ``axis`` inserted after the position stage, from this stage's state (``qfrc_applied = J^T f``)."""
+
+    def forward(mx, d):
+        d = mjx.fwd_position(mx, d)
+        jacp, _ = mjx.jac(mx, d, d.xpos[wheel_body], wheel_body)
+        dist = d.xpos[wheel_body, axis] - ground - tyre["radius"]
+        rate = jacp[:, axis] @ d.qvel
+        f = jnp.where(dist < 0.0, -(tyre["stiffness"] * dist + tyre["damping"] * rate), 0.0)
+        d = d.replace(qfrc_applied=jacp[:, axis] * f)
+        d = mjx.fwd_velocity(mx, d)
+        d = mjx.fwd_actuation(mx, d)
+        d = mjx.fwd_acceleration(mx, d)
+        return mjx.solve(mx, d)
+
+    return forward
+
+
+def connect_residual(m: mujoco.MjModel, eq: int) -> Callable:
+    """``residual(k)``: the gap of ``connect`` equality ``eq`` (its two anchors) from MJX kinematics ``k``."""
+    b1, b2 = int(m.eq_obj1id[eq]), int(m.eq_obj2id[eq])
+    anchor1, anchor2 = np.array(m.eq_data[eq, 0:3]), np.array(m.eq_data[eq, 3:6])
+
+    def residual(k):
+        return jnp.linalg.norm(k.xpos[b1] + k.xmat[b1] @ anchor1 - (k.xpos[b2] + k.xmat[b2] @ anchor2))
+
+    return residual
+
+
 def chain_rollout(m: mujoco.MjModel, n_save: int):
     """``(fn, mx, d0)``: ``fn(mx, d0, per)`` runs ``(n_save - 1) * per`` MJX RK4 steps of ``mx.opt.timestep``
     and returns the site positions ``(n_save, n_sites, 3)`` every ``per`` steps (the first at t = 0). ``fn`` is
@@ -135,27 +165,13 @@ def quarter_car_rollout(m: mujoco.MjModel, n_save: int, *, ground: float, tyre: 
     wb = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "wheel")
     cb = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "chassis")
     eq = 0  # the connect equality (upper ball joint)
-    b1, b2 = int(m.eq_obj1id[eq]), int(m.eq_obj2id[eq])
-    anchor1, anchor2 = np.array(m.eq_data[eq, 0:3]), np.array(m.eq_data[eq, 3:6])
 
-    def forward(mx, d):
-        """``mjx.forward`` with the tyre force from this stage's state inserted after the position stage."""
-        d = mjx.fwd_position(mx, d)
-        jacp, _ = mjx.jac(mx, d, d.xpos[wb], wb)  # the wheel body's origin (= CoM) is the wheel centre
-        dist = d.xpos[wb, 2] - ground - tyre["radius"]
-        vz = jacp[:, 2] @ d.qvel
-        f = jnp.where(dist < 0.0, -(tyre["stiffness"] * dist + tyre["damping"] * vz), 0.0)
-        d = d.replace(qfrc_applied=jacp[:, 2] * f)
-        d = mjx.fwd_velocity(mx, d)
-        d = mjx.fwd_actuation(mx, d)
-        d = mjx.fwd_acceleration(mx, d)
-        return mjx.solve(mx, d)
+    forward = tyre_forward(wb, 2, ground, tyre)
+    loop = connect_residual(m, eq)
 
     def observe(mx, d):
         k = mjx.kinematics(mx, d)
-        p1 = k.xpos[b1] + k.xmat[b1] @ anchor1
-        p2 = k.xpos[b2] + k.xmat[b2] @ anchor2
-        return jnp.stack([k.xpos[cb, 2], k.xpos[wb, 2], jnp.linalg.norm(p1 - p2)])
+        return jnp.stack([k.xpos[cb, 2], k.xpos[wb, 2], loop(k)])
 
     roll = rk4_rollout(m, n_save, forward, observe)
 

@@ -140,31 +140,15 @@ def mjx_rollout(m: mujoco.MjModel, n_save: int):
     import jax.numpy as jnp
     from mujoco import mjx
 
-    from .mjx import rk4_rollout, rk4_step
+    from .mjx import connect_residual, rk4_rollout, rk4_step, tyre_forward
 
     wb = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "wheel")
-    b1, b2 = int(m.eq_obj1id[0]), int(m.eq_obj2id[0])
-    anchor1, anchor2 = np.array(m.eq_data[0, 0:3]), np.array(m.eq_data[0, 3:6])
-    tyre = nk.TYRE
-
-    def forward(mx, d):
-        """``mjx.forward`` with the tyre force of this stage's state inserted after the position stage."""
-        d = mjx.fwd_position(mx, d)
-        jacp, _ = mjx.jac(mx, d, d.xpos[wb], wb)  # the wheel body's origin is its CoM
-        delta = d.xpos[wb, 1] - tyre["radius"]
-        vy = jacp[:, 1] @ d.qvel
-        f = jnp.where(delta < 0.0, -(tyre["stiffness"] * delta + tyre["damping"] * vy), 0.0)
-        d = d.replace(qfrc_applied=jacp[:, 1] * f)
-        d = mjx.fwd_velocity(mx, d)
-        d = mjx.fwd_actuation(mx, d)
-        d = mjx.fwd_acceleration(mx, d)
-        return mjx.solve(mx, d)
+    forward = tyre_forward(wb, 1, 0.0, nk.TYRE)
+    loop = connect_residual(m, 0)
 
     def observe(mx, d):
         k = mjx.kinematics(mx, d)
-        p1 = k.xpos[b1] + k.xmat[b1] @ anchor1
-        p2 = k.xpos[b2] + k.xmat[b2] @ anchor2
-        return jnp.stack([k.xpos[wb, 1], jnp.linalg.norm(p1 - p2)])
+        return jnp.stack([k.xpos[wb, 1], loop(k)])
 
     roll = rk4_rollout(m, n_save, forward, observe)
 
