@@ -116,7 +116,7 @@ def run() -> dict:
         "the largest error along the way; both are listed.",
         "The twins' loops are soft (MuJoCo clamps the `solref` time constant to ≥ 2 dt; the loop residual is in the "
         "CSV), so their error does not fall at RK4's rate at coarse steps; MJX also omits J̇v in `connect` rows "
-        "(MUJOCO-TWINS.md).",
+        "(docs/twins.md).",
         "Ours: `simulate_mechanism` as a user calls it (compile cached per structure and settings, listed "
         "separately, not in the ratios), timed saving the end state, the error over the run from the same settings "
         "saving 301 states. MuJoCo C: its native loop (`mujoco.rollout`, calling thread) with the tyre as a "

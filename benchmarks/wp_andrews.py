@@ -9,7 +9,7 @@ final and largest error coincide. The crank turns 2.5 times in 30 ms (up to 1.2e
   saving the end state, the angles unwrapped from a dense run of the same settings;
 * MuJoCo C twin: RK4 through ``mujoco.rollout`` over a sweep of fixed steps; the loops are ``connect`` equalities
   stiffened to MuJoCo's limit (``solref`` 2 dt), the spring a tendon and the motor a constant actuator bias (all
-  native elements, no callback). No MJX row (its ``connect`` rows omit J̇v, MUJOCO-TWINS.md).
+  native elements, no callback). No MJX row (its ``connect`` rows omit J̇v, docs/twins.md).
 
 Run: ``python -m benchmarks.wp_andrews``.
 """

@@ -15,7 +15,7 @@ the reference from ours (Dopri8, rtol 1e-13, atol 1e-15). Rows:
 * MuJoCo C twin, RK4 through ``mujoco.rollout`` over a sweep of fixed steps, the torque a compiled C
   ``mjcb_passive`` (:func:`particlesim.twins.callbacks.install_sine_torques`); and, labelled, the same twin driven from
   Python (``mj_step`` loop) with the torque added to ``qfrc_passive`` by a Python ``mjcb_passive`` at
-  every RK4 stage at the stage time ``d.time`` (a torque held over a step would be first order, MUJOCO-TWINS.md;
+  every RK4 stage at the stage time ``d.time`` (a torque held over a step would be first order, docs/twins.md;
   tests/twins/test_krang_torque_twin.py measures fourth-order convergence), and Euler and implicitfast (first order)
   over a short sweep, all three labelled "Python loop, Python callback"; the interpreter cost of that callback is
   measured separately (a no-op callback against none) in ``callback_overhead``;

@@ -180,7 +180,7 @@ def run() -> dict:
         "error over the run from the same settings saving every 10 ms.",
         "The twins' loop is soft (`solref` time constant 2 dt, the smallest MuJoCo accepts); MJX 3.17 also omits "
         f"J̇v in `connect` rows, so its loop opens {loop_ratio:.0f}× further than MuJoCo C's at dt 1e-3 "
-        "(MUJOCO-TWINS.md).",
+        "(docs/twins.md).",
     ]
     res = _wp.finish(NAME, "Nikravesh planar double A-arm", T_END, TARGET, "m", "wheel-assembly CoM height y2",
                      {"what": f"ours Dopri8 rtol {REF_RTOL:g}", "y2_final_m": float(y_ref[-1]),

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from typing import TYPE_CHECKING, Optional, Sequence
+from typing import Optional, Sequence
 
 import jax.numpy as jnp
 import numpy as np
@@ -20,9 +20,6 @@ from ..inertia import RigidInertia
 from ..particles import check_placement, equivalent_particles
 from .joints import AXES, unit
 from .model import AppliedForce, AppliedTorque, BodyLoad, DotRows, DriveRows, LinearRows, Mechanism, Topology
-
-if TYPE_CHECKING:
-    from .builder import MechanismBuilder
 
 __all__ = ["ConstraintRank", "RedundantConstraintsWarning", "ASSEMBLY_RTOL", "RANK_RTOL"]
 
@@ -59,7 +56,7 @@ class ConstraintRank:
 class _Build:
     """One build: the stages of :meth:`MechanismBuilder.build`, in order, on NumPy arrays."""
 
-    def __init__(self, mb: MechanismBuilder):
+    def __init__(self, mb):  # a MechanismBuilder (its recorded declarations)
         self.mb = mb
         self.names = list(mb._particles)
         self.index = {n: i for i, n in enumerate(self.names)}

@@ -7,7 +7,7 @@ Same constants, joints in MuJoCo's own terms, plane x-y, no gravity:
   initial angles, so ``qpos = 0`` is the assembled state;
 * the two loops are closed by three equality ``connect`` constraints (B on BDE, A on GA and A on HA to the
   ground). They are soft in MuJoCo; stiffened as far as it allows (``solref`` time constant 2 dt, ``solimp``
-  0.9999, see MUJOCO-TWINS.md);
+  0.9999, see docs/twins.md);
 * the spring D-C is a spatial tendon (stiffness c0, spring length l0); the motor a ``general`` actuator whose
   affine bias is the constant torque (no control input). Planar inertias ``ixx = iyy = izz = J``.
 """

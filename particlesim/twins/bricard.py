@@ -4,7 +4,7 @@ Same data in MuJoCo's own terms: an open chain ground -> rod1 -> ... -> rod5 of 
 z), every body frame at its hinge with world axes so that ``qpos = 0`` is the assembled state; the sixth joint
 (P6, axis x, to the ground) is two equality ``connect`` constraints, at P6 and one ``AXIS_OFFSET`` along the axis
 (six rows for five conditions: MuJoCo's soft constraints take the redundancy as they come). Loops in MuJoCo are soft;
-stiffened as far as it allows (``solref`` time constant 2 dt, ``solimp`` 0.9999; MUJOCO-TWINS.md). RK4.
+stiffened as far as it allows (``solref`` time constant 2 dt, ``solimp`` 0.9999; docs/twins.md). RK4.
 """
 
 from __future__ import annotations

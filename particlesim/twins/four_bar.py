@@ -2,7 +2,7 @@
 
 In MuJoCo's own terms: N + 1 cranks hinged to the ground at ``A{i}`` (hinge z), coupler ``i`` hinged to the top of
 crank ``i - 1`` and joined to the top of crank ``i`` by an equality ``connect`` (N loops, soft in MuJoCo; stiffened
-as far as it allows, ``solref`` 2 dt, ``solimp`` 0.9999, MUJOCO-TWINS.md). Uniform 1 m, 1 kg rods (MuJoCo needs a
+as far as it allows, ``solref`` 2 dt, ``solimp`` 0.9999, docs/twins.md). Uniform 1 m, 1 kg rods (MuJoCo needs a
 positive axial moment: 1e-6 kg m², which planar motion never uses). Gravity along −y; cranks start at −1 rad/s,
 couplers translating (+1 rad/s relative to their crank). RK4. Soft loops let the linkage pass the flat positions
 (MuJoCo's constraint solve is regularised).

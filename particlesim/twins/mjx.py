@@ -16,7 +16,7 @@ Rollouts of the twins built on it (used by ``tests/twins/test_mjx_twins.py`` and
   an RK4 loop of our own around MJX's forward stages: MJX has no passive-force callback, so the one-sided tyre is
   evaluated from the state at every RK4 stage (wheel-centre height and velocity from the kinematics and the site
   Jacobian, ``qfrc_applied = J_z^T F``) before the velocity and acceleration stages. The law is then exact per
-  stage, as the MuJoCo C twin's ``mjcb_passive`` (a force held over a step would be first order, MUJOCO-TWINS.md).
+  stage, as the MuJoCo C twin's ``mjcb_passive`` (a force held over a step would be first order, docs/twins.md).
   The RK4 loop is :func:`rk4_rollout` (MuJoCo's ``mj_RungeKutta`` tableau).
 * :func:`forced_rk4_rollout` is the same RK4 loop around ``mjx.forward`` for any model driven by a time-dependent
   generalised force ``force(t)`` (e.g. Krang's arm torques), applied in ``qfrc_applied`` at every stage at the

@@ -14,7 +14,7 @@ gravity -y:
 * the one-sided tyre is not a MuJoCo element. In MuJoCo C a passive-force callback (``mjcb_passive``) evaluates it
   at every RK4 stage; MJX has no callback, so :func:`mjx_rollout` runs its own RK4 loop around MJX's forward
   stages and writes ``qfrc_applied = J_y^T F`` from each stage's state. Either way the law is exact per stage (a
-  force held over a step would be first order, MUJOCO-TWINS.md).
+  force held over a step would be first order, docs/twins.md).
 
 MJX 3.17 omits the ``J̇ v`` term of ``connect`` rows, so its loop residual, and with it its wheel height, is looser
 than MuJoCo C's at the same step (measured in ``tests/twins/test_nikravesh_twin.py``).

@@ -8,7 +8,7 @@ assumed geometry, joints in MuJoCo's own terms.
   (``solref`` time constant ``SOLREF_TC``, ``solimp`` 0.9999) as far as MuJoCo allows at the step used;
 * the suspension spring-damper is a spatial tendon with stiffness, damping and spring length (the same law);
 * the one-sided tyre is not expressible by MuJoCo elements: a passive-force callback evaluates the same law at
-  every RK4 stage (``mjcb_passive``), so it is not held over a step (see MUJOCO-TWINS.md).
+  every RK4 stage (``mjcb_passive``), so it is not held over a step (see docs/twins.md).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 passive-force callback that reads the stage time ``d.time``, and against the MJX twin's RK4 loop.
 
 * A torque evaluated at every RK4 stage keeps RK4 fourth order: the difference to ours must fall ~16× per halving
-  of the step. A torque held over a step would make it first order (~2× per halving; MUJOCO-TWINS.md), so the
+  of the step. A torque held over a step would make it first order (~2× per halving; docs/twins.md), so the
   ratio test fails if MuJoCo's stages did not see their own times.
 * Richardson: RK4's error at dt is ``(16/15) |x_dt - x_dt/2|``; ours (Dopri8, rtol 1e-12, its own error ~1e-10
   rad, test_mujoco_twin.py) must sit within ``SAFETY`` times that of the dt run, plus ``OURS_FLOOR``.

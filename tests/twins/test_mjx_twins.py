@@ -8,7 +8,7 @@ Error sources, each measured in the test rather than assumed:
   it accumulates to about ``k * ROUNDOFF_ULPS * eps * scale`` (``scale`` = the largest coordinate, metres).
 * Soft loops (quarter car only): MuJoCo's ``connect`` and tendon equalities are regularised, so the twins' chassis
   carries an error of the order of their measured loop residual; MJX 3.17 omits the ``J̇ v`` term of ``connect``
-  rows (MUJOCO-TWINS.md), so MJX's loop residual, and with it its error, is larger than MuJoCo C's.
+  rows (docs/twins.md), so MJX's loop residual, and with it its error, is larger than MuJoCo C's.
 
 ``SAFETY`` is the same factor of the existing twin tests; nothing here is tuned to the results.
 """

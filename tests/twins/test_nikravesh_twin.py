@@ -9,7 +9,7 @@ Error sources of a twin, each measured in the test rather than assumed:
 * the reference file's own error: ``AA_results.csv`` is MATLAB ode45 at RelTol 1e-6; its distance from ours
   (Dopri8, rtol 1e-12) is measured here and added by the triangle inequality.
 
-MJX 3.17 omits the ``J̇ v`` term of ``connect`` rows (MUJOCO-TWINS.md): its loop opens much further than MuJoCo C's
+MJX 3.17 omits the ``J̇ v`` term of ``connect`` rows (docs/twins.md): its loop opens much further than MuJoCo C's
 at the same step, and its wheel height is compared with MuJoCo C within MJX's own loop residual. That residual is
 the compliance's response to a missing acceleration term, so it scales as the squared ``solref`` time constant
 (2 dt): it must fall four-fold per halving of the step.
