@@ -11,19 +11,9 @@ import pytest
 from particlesim import _ode
 from particlesim.errors import ModelError
 from particlesim.simulate import simulate
-from particlesim.tree import (
-    TreeModel,
-    bias_forces,
-    christoffel_symbols,
-    forward_dynamics,
-    gravity_torques,
-    inverse_dynamics,
-    kinetic_energy,
-    link_jacobian,
-    link_poses,
-    mass_matrix,
-    potential_energy,
-)
+from particlesim.tree import (TreeModel, bias_forces, christoffel_symbols, forward_dynamics, gravity_torques,
+                              inverse_dynamics, kinetic_energy, link_jacobian, link_poses, mass_matrix,
+                              potential_energy)
 from particlesim.io import load_urdf
 from tree_helpers import batched_terms, max_rel, random_tree_urdf, states
 
