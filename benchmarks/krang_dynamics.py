@@ -49,6 +49,43 @@ def _row(name, seconds, unit, compile_s=None, note=""):
     return {"name": name, "time_us": seconds * 1e6, "unit": unit, "compile_s": compile_s, "note": note}
 
 
+_SYNC_SCRIPT = """
+import json, statistics, time, sys
+import jax
+jax.config.update("jax_cpu_enable_async_dispatch", False)
+import particlesim, numpy as np, jax.numpy as jnp
+from particlesim.data import data_dir
+from particlesim.io import load_urdf
+from particlesim.tree import forward_dynamics
+model = load_urdf(data_dir() / sys.argv[1], gravity=tuple(json.loads(sys.argv[2])), limits="ignore")
+rng = np.random.default_rng(0)
+q, qd, tau = (jnp.asarray(rng.uniform(-1.0, 1.0, model.nq)) for _ in range(3))
+call = jax.jit(forward_dynamics).lower(model, q, qd, tau).compile()
+floor = jax.jit(lambda q: q + 1.0).lower(q).compile()
+def med(fn, n=200, laps=15):
+    fn()
+    out = []
+    for _ in range(laps):
+        t = time.perf_counter()
+        for _ in range(n):
+            fn().block_until_ready()
+        out.append((time.perf_counter() - t) / n)
+    return statistics.median(out)
+print(json.dumps({"call_s": med(lambda: call(model, q, qd, tau)), "floor_s": med(lambda: floor(q))}))
+"""
+
+
+def _synchronous_single_calls() -> dict:
+    """Median time of one jitted forward-dynamics call and of the dispatch floor with asynchronous CPU dispatch
+    off, measured in a fresh process (``jax_cpu_enable_async_dispatch`` is read when the CPU client starts)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _SYNC_SCRIPT, URDF, json.dumps(list(GRAVITY))], check=True,
+                         capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def run() -> dict:
     path = data_dir() / URDF
     model = load_urdf(path, gravity=GRAVITY)
@@ -80,6 +117,13 @@ def run() -> dict:
     floor, _ = _compile(lambda q: q + 1.0, jq[0])
     t = median_time(lambda: floor(q1).block_until_ready(), number=200)
     rows.append(_row("jit dispatch floor (q + 1, for reference)", t, "per call"))
+    # The same two single calls with JAX's asynchronous CPU dispatch off (a fresh process: the setting is read when
+    # the CPU client starts). An execution above XLA's "cheap" threshold is otherwise handed to a worker thread.
+    sync = _synchronous_single_calls()
+    rows.append(_row("ours forward_dynamics (1 call, jit, synchronous CPU dispatch)", sync["call_s"], "per call",
+                     note="jax_cpu_enable_async_dispatch=False, fresh process"))
+    rows.append(_row("jit dispatch floor (q + 1, synchronous CPU dispatch)", sync["floor_s"], "per call",
+                     note="same process"))
     batched, c2 = _compile(jax.vmap(forward_dynamics, in_axes=(None, 0, 0, 0)), model, jq, jqd, jtau)
     t = median_time(lambda: batched(model, jq, jqd, jtau), number=5, block=jax.block_until_ready)
     rows.append(_row(f"ours forward_dynamics (vmap {BATCH}, one-state path vectorised)", t / BATCH, "per state", c2))
@@ -278,6 +322,16 @@ def markdown(results: dict) -> str:
               f"Max |q̈ ours − ABA| / max |q̈|: {chk['max_rel_qdd_diff_ours_vs_pinocchio']:.1e} over 16 single states, "
               f"{chk.get('max_rel_qdd_diff_ours_batch_vs_abaInParallel_all_states', float('nan')):.1e} over the "
               f"whole batch.", ""]
+    one = by.get("ours forward_dynamics (1 call, jit, model as argument)")
+    one_sync = by.get("ours forward_dynamics (1 call, jit, synchronous CPU dispatch)")
+    if one is not None and one_sync is not None:
+        scan = next(v for k, v in by.items() if "in a compiled scan" in k)
+        floor = by["jit dispatch floor (q + 1, for reference)"]
+        floor_sync = by["jit dispatch floor (q + 1, synchronous CPU dispatch)"]
+        lines += [f"One state from Python: one jitted call {one:.0f} µs against a {floor:.1f} µs dispatch floor with "
+                  f"JAX's default asynchronous CPU dispatch, {one_sync:.0f} µs against {floor_sync:.1f} µs with it off "
+                  f"(`jax_cpu_enable_async_dispatch=False`; XLA hands a program above its 'cheap' threshold to a "
+                  f"worker thread, and the hand-over dominates here); {scan:.1f} µs inside a compiled scan.", ""]
     return "\n".join(lines)
 
 
