@@ -15,7 +15,7 @@ run whose final error reaches the target) and the speed ratios at equal error; :
 :func:`sweep_ours` so the reference (usually Dopri8 at a tight tolerance) and the sweep share one compile.
 Added later, keyword-only and optional: the earlier calls are unchanged. Wall times: the least over up to
 ``repeat`` runs, the first included (functions are compiled beforehand), fewer once a row has taken
-``ROW_BUDGET_S``; :func:`headline_notes` states the issue's goals (≥ 2× faster than MJX, no slower than MuJoCo C
+``ROW_BUDGET_S``; :func:`headline_notes` states the goals (≥ 2× faster than MJX, no slower than MuJoCo C
 at the target error) as met or missed.
 """
 
@@ -232,7 +232,7 @@ def finish(name: str, scene: str, t_end: float, target: float, unit: str, what: 
 
 
 def headline_notes(results: dict, *, mjx_goal: float = 2.0, c_goal: float = 1.0) -> list[str]:
-    """Sentences on the issue's goals at the target error: ours ≥ ``mjx_goal``× as fast as MJX and ≥ ``c_goal``×
+    """Sentences on the goals at the target error: ours ≥ ``mjx_goal``× as fast as MJX and ≥ ``c_goal``×
     as fast as MuJoCo C (equal simulated time, so per simulated second too), each met, missed or not measurable."""
     out = []
     for peer, goal in (("MJX", mjx_goal), ("MuJoCo C", c_goal)):

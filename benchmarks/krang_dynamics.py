@@ -8,7 +8,7 @@ Rows (per state for batched rows, per step for fixed-step rollouts, per simulate
   1024 states; MuJoCo C RK4 per step (dt 1e-4, ``mujoco.rollout``); MJX jitted RK4 rollout (scan) per
   step; our jitted diffrax rollout per simulated second (Tsit5 at the default tolerances, Dopri8 at tight ones).
 Compile times are measured separately (``jit(...).lower(...).compile()``); run times are medians of repeats with
-``block_until_ready`` on the results. Issue targets: batched ≤ 1.0× ABA per state, single call ≤ 3× ABA,
+``block_until_ready`` on the results. Goals: batched ≤ 1.0× ABA per state, single call ≤ 3× ABA,
 compile ≤ 5 s.
 """
 

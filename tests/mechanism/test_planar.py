@@ -36,7 +36,7 @@ ENERGY_RISE_RTOL = 1e-8
 def _readme_example() -> dict:
     text = README.read_text()
     block = re.search(r"<!-- planar-four-bar.*?-->\s*```python\n(.*?)```", text, re.S).group(1)
-    assert len([ln for ln in block.splitlines() if ln.strip()]) <= 15  # the limit on user code
+    assert len([ln for ln in block.splitlines() if ln.strip()]) <= 15  # the README's limit on a quickstart
     env: dict = {}
     exec(compile(block, "README planar four-bar", "exec"), env)  # noqa: S102 (our own README)
     return env

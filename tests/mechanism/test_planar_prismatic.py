@@ -1,4 +1,4 @@
-"""A translational joint between two moving bodies in a plane (issue: the rotation row was once degenerate in
+"""A translational joint between two moving bodies in a plane (a regression: the rotation row was once degenerate in
 every planar configuration): a slider on a bar that turns about a fixed axis, against the Lagrange equations of
 the two body coordinates (bar angle, slide) written here and integrated by SciPy."""
 
