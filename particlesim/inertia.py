@@ -107,8 +107,9 @@ def com_params(params) -> tuple:
 
 def inertia_about_point(i_com, mass, com, point) -> Float[Array, "3 3"]:
     """Parallel-axis theorem: inertia about ``point`` from the inertia about the CoM (same axes)."""
-    d = jnp.asarray(com) - jnp.asarray(point)
-    return jnp.asarray(i_com) + mass * (jnp.dot(d, d) * jnp.eye(3) - jnp.outer(d, d))
+    xp = _xp(i_com, mass, com, point)
+    d = xp.asarray(com) - xp.asarray(point)
+    return xp.asarray(i_com) + mass * (xp.dot(d, d) * xp.eye(3) - xp.outer(d, d))
 
 
 def inertia_about_com(i_point, mass, com, point) -> Float[Array, "3 3"]:
@@ -125,8 +126,9 @@ def rotate_inertia(inertia, rotation) -> Float[Array, "3 3"]:
 
 def second_moment_from_inertia(inertia) -> Float[Array, "3 3"]:
     """``S = tr(I)/2 E - I``, the second moment of mass ``sum m r r^T`` about the same point."""
-    inertia = jnp.asarray(inertia)
-    return 0.5 * jnp.trace(inertia) * jnp.eye(3) - inertia
+    xp = _xp(inertia)
+    inertia = xp.asarray(inertia)
+    return 0.5 * xp.trace(inertia) * xp.eye(3) - inertia
 
 
 def inertia_from_second_moment(s) -> Float[Array, "3 3"]:

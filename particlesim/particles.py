@@ -39,7 +39,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .errors import NegativeMassWarning, PlacementError
-from .inertia import RigidInertia, check_inertia, inertia_about_point, second_moment_from_inertia
+from .inertia import _xp, RigidInertia, check_inertia, inertia_about_point, second_moment_from_inertia
 from .spatial import frame_from_points
 
 __all__ = [
@@ -123,26 +123,28 @@ def check_placement(primaries: ArrayLike, name: str = "body") -> str:
 
 
 def _barycentric_moments(mass, com, s_origin, primaries):
-    """``mu = int lambda dm`` (k,) and ``L = int lambda lambda^T dm`` (k, k), plus the out-of-span residuals."""
+    """``mu = int lambda dm`` (k,) and ``L = int lambda lambda^T dm`` (k, k), plus the out-of-span residuals (NumPy
+    for NumPy inputs, as when a mechanism is built; JAX otherwise)."""
+    xp = _xp(mass, com, s_origin, primaries)
     r1 = primaries[0]
     e = (primaries[1:] - r1[None, :]).T  # (3, k-1) edge vectors
     # Moments about the first primary.
     d = com - r1
-    s1 = s_origin - mass * (jnp.outer(com, r1) + jnp.outer(r1, com)) + mass * jnp.outer(r1, r1)
+    s1 = s_origin - mass * (xp.outer(com, r1) + xp.outer(r1, com)) + mass * xp.outer(r1, r1)
     # Least-squares coordinates beta of a point along the edges (exact when the point lies in their span).
     gram = e.T @ e
-    e_pinv = jnp.linalg.solve(gram, e.T)  # (k-1, 3)
+    e_pinv = xp.linalg.solve(gram, e.T)  # (k-1, 3)
     beta_first = e_pinv @ (mass * d)  # int beta dm
     beta_second = e_pinv @ s1 @ e_pinv.T  # int beta beta^T dm
     # lambda = P (1, beta) with P = [[1, -1^T], [0, I]]
     k = primaries.shape[0]
-    p = jnp.concatenate([jnp.concatenate([jnp.ones((1,)), -jnp.ones((k - 1,))])[None, :],
-                         jnp.concatenate([jnp.zeros((k - 1, 1)), jnp.eye(k - 1)], axis=1)], axis=0)
-    mom = jnp.block([[mass[None, None], beta_first[None, :]], [beta_first[:, None], beta_second]])
+    p = xp.concatenate([xp.concatenate([xp.ones((1,)), -xp.ones((k - 1,))])[None, :],
+                         xp.concatenate([xp.zeros((k - 1, 1)), xp.eye(k - 1)], axis=1)], axis=0)
+    mom = xp.block([[mass[None, None], beta_first[None, :]], [beta_first[:, None], beta_second]])
     big_l = p @ mom @ p.T
-    mu = p @ jnp.concatenate([mass[None], beta_first])
+    mu = p @ xp.concatenate([mass[None], beta_first])
     # Residual of the part of the mass distribution outside span(e) (zero for a spatial set).
-    proj = jnp.eye(3) - e @ e_pinv
+    proj = xp.eye(3) - e @ e_pinv
     res_first = proj @ (mass * d)
     res_second = proj @ s1
     return mu, big_l, res_first, res_second, s1
@@ -156,15 +158,17 @@ def solve_particle_masses(mass: ArrayLike, com: ArrayLike, inertia_com: ArrayLik
     frame). Solves Attia eqs. (1)–(8) in closed form (see module docstring). No validation: see
     :func:`equivalent_particles` for the checked entry point.
     """
-    mass = jnp.asarray(mass, dtype=float)
-    com = jnp.asarray(com, dtype=float)
-    primaries = jnp.asarray(primaries, dtype=float)
+    xp = _xp(mass, com, inertia_com, primaries)
+    mass = xp.asarray(mass, dtype=float)
+    com = xp.asarray(com, dtype=float)
+    primaries = xp.asarray(primaries, dtype=float)
     kind = _kind_of(primaries)
-    s_origin = second_moment_from_inertia(inertia_about_point(inertia_com, mass, com, jnp.zeros(3)))
+    s_origin = second_moment_from_inertia(inertia_about_point(xp.asarray(inertia_com, dtype=float), mass, com,
+                                                              xp.zeros(3)))
     mu, big_l, _, _, _ = _barycentric_moments(mass, com, s_origin, primaries)
-    prim = 2.0 * jnp.diagonal(big_l) - mu
-    sec = jnp.stack([4.0 * big_l[i, j] for i, j in PAIRS[kind]])
-    return jnp.concatenate([prim, sec])
+    prim = 2.0 * xp.diagonal(big_l) - mu
+    sec = xp.stack([4.0 * big_l[i, j] for i, j in PAIRS[kind]])
+    return xp.concatenate([prim, sec])
 
 
 def primary_mass_matrix(mass: ArrayLike, com: ArrayLike, inertia_com: ArrayLike,
@@ -258,20 +262,22 @@ def equivalent_particles(body: RigidInertia, primaries: Float[ArrayLike, "k 3"],
         raise ValueError(f"on_negative must be 'warn', 'raise' or 'ignore', got {on_negative!r}")
     kind = check_placement(primaries, name)
     check_inertia(body.mass, body.com, body.inertia, name, degenerate_ok=kind != "spatial")
-    prim = jnp.asarray(primaries, dtype=float)
+    # concrete values: the checks and the solve run in NumPy (eager JAX would compile every operation once)
+    mass, com, i_com = (np.asarray(v, dtype=float) for v in (body.mass, body.com, body.inertia))
+    prim = np.asarray(primaries, dtype=float)
     if kind != "spatial":
-        s_origin = second_moment_from_inertia(body.about(jnp.zeros(3)))
-        _, _, res_first, res_second, s1 = _barycentric_moments(body.mass, body.com, s_origin, prim)
-        scale_second = float(jnp.trace(s1))
-        scale_first = float(body.mass * jnp.max(jnp.linalg.norm(prim - prim[0][None, :], axis=-1)))
-        off_first = float(jnp.linalg.norm(res_first))
-        off_second = float(jnp.max(jnp.abs(res_second)))
+        s_origin = second_moment_from_inertia(inertia_about_point(i_com, mass, com, np.zeros(3)))
+        _, _, res_first, res_second, s1 = _barycentric_moments(mass, com, s_origin, prim)
+        scale_second = float(np.trace(s1))
+        scale_first = float(mass * np.max(np.linalg.norm(prim - prim[0][None, :], axis=-1)))
+        off_first = float(np.linalg.norm(res_first))
+        off_second = float(np.max(np.abs(res_second)))
         where = "plane" if kind == "planar" else "line"
         if off_first > REPRESENTABLE_RTOL * scale_first:
             raise PlacementError(
                 f"{name}: a {kind} particle set cannot represent this body: its centre of mass "
-                f"{np.asarray(body.com).tolist()} (body frame) lies {off_first / float(body.mass):.3g} m off the "
-                f"{where} of the primaries {np.asarray(prim).round(12).tolist()} (body frame); place the primaries "
+                f"{com.tolist()} (body frame) lies {off_first / float(mass):.3g} m off the "
+                f"{where} of the primaries {prim.round(12).tolist()} (body frame); place the primaries "
                 f"so that their {where} contains the centre of mass")
         if off_second > REPRESENTABLE_RTOL * scale_second:
             need = ("the perpendicular-axis theorem I_n = I_a + I_b about the plane normal"
@@ -279,7 +285,7 @@ def equivalent_particles(body: RigidInertia, primaries: Float[ArrayLike, "k 3"],
             raise PlacementError(
                 f"{name}: a {kind} particle set cannot represent this body: its mass extends out of the {where} of "
                 f"the primaries (out-of-{where} second moment {off_second:.3g} kg m^2; a {kind} body needs {need})")
-    masses = solve_particle_masses(body.mass, body.com, body.inertia, prim)
+    masses = solve_particle_masses(mass, com, i_com, prim)
     neg = np.flatnonzero(np.asarray(masses) < -NEGATIVE_MASS_RTOL * float(body.mass))
     if neg.size and on_negative != "ignore":
         msg = (f"{name}: equivalent particles {[int(i) + 1 for i in neg]} have negative masses "
@@ -289,7 +295,7 @@ def equivalent_particles(body: RigidInertia, primaries: Float[ArrayLike, "k 3"],
         if on_negative == "raise":
             raise PlacementError(msg)
         warnings.warn(msg, NegativeMassWarning, stacklevel=2)
-    return ParticleSet(primaries=prim, masses=masses, kind=kind, name=name)
+    return ParticleSet(primaries=jnp.asarray(prim), masses=jnp.asarray(masses), kind=kind, name=name)
 
 
 def positions_from_pose(body_positions: Float[ArrayLike, "n 3"], rotation: ArrayLike,
