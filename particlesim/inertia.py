@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from ._namespace import xp_of
 from .errors import InertiaError
 
 __all__ = [
@@ -55,14 +56,9 @@ PHYSICAL_RTOL = 1e-9
 POINT_RADIUS = 1e-6
 
 
-def _xp(*xs):
-    """NumPy for NumPy/Python inputs (static model building stays exact and cheap), JAX otherwise."""
-    return np if all(isinstance(x, (np.ndarray, np.generic, float, int)) for x in xs) else jnp
-
-
 def sym_from_six(six) -> Float[Array, "... 3 3"]:
     """``[XX, XY, XZ, YY, YZ, ZZ]`` (last axis) -> the symmetric ``(..., 3, 3)`` tensor."""
-    xp = _xp(six)
+    xp = xp_of(six)
     six = xp.asarray(six)
     xx, xy, xz, yy, yz, zz = (six[..., k] for k in range(6))
     return xp.stack([xp.stack([xx, xy, xz], -1), xp.stack([xy, yy, yz], -1), xp.stack([xz, yz, zz], -1)], -2)
@@ -70,52 +66,52 @@ def sym_from_six(six) -> Float[Array, "... 3 3"]:
 
 def six_from_sym(j) -> Float[Array, "... 6"]:
     """The six independent entries ``[XX, XY, XZ, YY, YZ, ZZ]`` of symmetric ``(..., 3, 3)`` tensors."""
-    xp = _xp(j)
+    xp = xp_of(j)
     j = xp.asarray(j)
     return xp.stack([j[..., 0, 0], j[..., 0, 1], j[..., 0, 2], j[..., 1, 1], j[..., 1, 2], j[..., 2, 2]], -1)
 
 
 def pack_params(mass, first_moment, j_origin) -> Float[Array, "... 10"]:
     """``(m (...), m c (..., 3), J_O (..., 3, 3))`` -> 10-vectors ``[m, m c, XX, XY, XZ, YY, YZ, ZZ]``."""
-    xp = _xp(mass, first_moment, j_origin)
+    xp = xp_of(mass, first_moment, j_origin)
     mass = xp.asarray(mass)
     return xp.concatenate([mass[..., None], xp.asarray(first_moment), six_from_sym(j_origin)], -1)
 
 
 def unpack_params(params) -> tuple:
     """10-vectors ``(..., 10)`` -> ``(m (...), m c (..., 3), J_O (..., 3, 3))``, the inertia about the origin."""
-    xp = _xp(params)
+    xp = xp_of(params)
     p = xp.asarray(params)
     return p[..., 0], p[..., 1:4], sym_from_six(p[..., 4:10])
 
 
 def origin_params(mass, com, i_com) -> Float[Array, "... 10"]:
     """``(m, c, I_G)`` (one body, its frame) -> the 10-vector about the frame origin (parallel-axis shift)."""
-    xp = _xp(mass, com, i_com)
+    xp = xp_of(mass, com, i_com)
     c = xp.asarray(com)
-    j = xp.asarray(i_com) + mass * (xp.dot(c, c) * xp.eye(3) - xp.outer(c, c))
-    return pack_params(mass, mass * c, j)
+    return pack_params(mass, mass * c, inertia_about_point(i_com, mass, c, xp.zeros(3)))
 
 
 def com_params(params) -> tuple:
     """Inverse of :func:`origin_params` for one 10-vector with ``m != 0``: ``(m, c, I_G)``."""
-    xp = _xp(params)
+    xp = xp_of(params)
     m, h, j = unpack_params(params)
     c = h / m
-    return m, c, j - m * (xp.dot(c, c) * xp.eye(3) - xp.outer(c, c))
+    return m, c, inertia_about_com(j, m, c, xp.zeros(3))
 
 
 def inertia_about_point(i_com, mass, com, point) -> Float[Array, "3 3"]:
     """Parallel-axis theorem: inertia about ``point`` from the inertia about the CoM (same axes)."""
-    xp = _xp(i_com, mass, com, point)
+    xp = xp_of(i_com, mass, com, point)
     d = xp.asarray(com) - xp.asarray(point)
     return xp.asarray(i_com) + mass * (xp.dot(d, d) * xp.eye(3) - xp.outer(d, d))
 
 
 def inertia_about_com(i_point, mass, com, point) -> Float[Array, "3 3"]:
     """Inverse parallel-axis shift: inertia about the CoM from the inertia about ``point``."""
-    d = jnp.asarray(com) - jnp.asarray(point)
-    return jnp.asarray(i_point) - mass * (jnp.dot(d, d) * jnp.eye(3) - jnp.outer(d, d))
+    xp = xp_of(i_point, mass, com, point)
+    d = xp.asarray(com) - xp.asarray(point)
+    return xp.asarray(i_point) - mass * (xp.dot(d, d) * xp.eye(3) - xp.outer(d, d))
 
 
 def rotate_inertia(inertia, rotation) -> Float[Array, "3 3"]:
@@ -126,7 +122,7 @@ def rotate_inertia(inertia, rotation) -> Float[Array, "3 3"]:
 
 def second_moment_from_inertia(inertia) -> Float[Array, "3 3"]:
     """``S = tr(I)/2 E - I``, the second moment of mass ``sum m r r^T`` about the same point."""
-    xp = _xp(inertia)
+    xp = xp_of(inertia)
     inertia = xp.asarray(inertia)
     return 0.5 * xp.trace(inertia) * xp.eye(3) - inertia
 

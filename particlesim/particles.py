@@ -39,7 +39,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .errors import NegativeMassWarning, PlacementError
-from .inertia import _xp, RigidInertia, check_inertia, inertia_about_point, second_moment_from_inertia
+from ._namespace import xp_of
+from .inertia import RigidInertia, check_inertia, inertia_about_point, second_moment_from_inertia
 from .spatial import frame_from_points
 
 __all__ = [
@@ -125,7 +126,7 @@ def check_placement(primaries: ArrayLike, name: str = "body") -> str:
 def _barycentric_moments(mass, com, s_origin, primaries):
     """``mu = int lambda dm`` (k,) and ``L = int lambda lambda^T dm`` (k, k), plus the out-of-span residuals (NumPy
     for NumPy inputs, as when a mechanism is built; JAX otherwise)."""
-    xp = _xp(mass, com, s_origin, primaries)
+    xp = xp_of(mass, com, s_origin, primaries)
     r1 = primaries[0]
     e = (primaries[1:] - r1[None, :]).T  # (3, k-1) edge vectors
     # Moments about the first primary.
@@ -158,7 +159,7 @@ def solve_particle_masses(mass: ArrayLike, com: ArrayLike, inertia_com: ArrayLik
     frame). Solves Attia eqs. (1)–(8) in closed form (see module docstring). No validation: see
     :func:`equivalent_particles` for the checked entry point.
     """
-    xp = _xp(mass, com, inertia_com, primaries)
+    xp = xp_of(mass, com, inertia_com, primaries)
     mass = xp.asarray(mass, dtype=float)
     com = xp.asarray(com, dtype=float)
     primaries = xp.asarray(primaries, dtype=float)

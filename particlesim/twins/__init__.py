@@ -1,5 +1,6 @@
 """MuJoCo C and MJX twins: the same models written in MuJoCo's own terms, the independent references that tests
-and benchmarks compare against. Nothing in the simulator imports this package.
+and benchmarks compare against. The core never imports this package; tests, benchmarks and the reports
+of the main job do.
 
 * :mod:`.urdf` — a URDF tree as an ``MjModel``/``MjSpec`` (pure rigid tree) and the joint map between MuJoCo's
   order and ours;
