@@ -107,6 +107,40 @@ def test_tree_rollout_compiles_once(two_link):
     assert not np.allclose(a.q[-1], b.q[-1])
 
 
+def test_one_state_tree_functions_are_compiled_entries(tmp_path):
+    """An eager call of a one-state tree function is one compiled entry per model structure and static setting: the
+    first call traces it once, new parameter values and states reuse it (trace counter), its values equal the same
+    function traced inside an outer jit, and plain Python or NumPy inputs are converted, not traced as pytrees of
+    scalars."""
+    from particlesim.io import load_urdf
+    from particlesim.tree import forward_dynamics, inverse_dynamics, link_jacobian, mass_matrix
+
+    path = tmp_path / "two_link.urdf"
+    path.write_text(TWO_LINK_URDF)
+    # a structure no other test uses (rotor inertia and viscous friction present): its first call must trace
+    model = load_urdf(path, gravity=(0.0, -9.81, 0.0), rotor_inertia=[0.01, 0.02], viscous=[0.1, 0.3])
+    q, qd, tau = np.array([0.3, -0.2]), np.array([0.5, 1.0]), np.array([0.1, -0.4])
+    heavier = model.with_params(inertia=model.inertia * 1.3, gravity=jnp.array([0.0, -9.7, 0.1]))
+    for name, call in (("forward_dynamics", lambda m, s: forward_dynamics(m, q + s, qd, tau)),
+                       ("mass_matrix", lambda m, s: mass_matrix(m, list(q + s))),
+                       ("inverse_dynamics", lambda m, s: inverse_dynamics(m, q + s, qd, tau)),
+                       ("link_jacobian", lambda m, s: link_jacobian(m, q + s, "b", frame="local"))):
+        before = _ode.TRACES[name]
+        first = call(model, 0.0)
+        assert _ode.TRACES[name] == before + 1, name
+        second = call(heavier, 0.1)
+        call(model, -0.7)
+        assert _ode.TRACES[name] == before + 1, name  # new parameters and states: no retrace
+        assert not np.allclose(first, second), name
+        inside = jax.jit(lambda m: call(m, 0.1))(heavier)  # the same function traced inside a user's jit
+        np.testing.assert_allclose(second, inside, rtol=1e-13, atol=1e-15)
+    before = _ode.TRACES["link_jacobian"]
+    link_jacobian(model, q, "b", frame="world")  # a new static setting: one new compile
+    assert _ode.TRACES["link_jacobian"] == before + 1
+    with pytest.raises(ModelError, match=r"q must have shape \(2,\)"):
+        mass_matrix(model, np.zeros(3))
+
+
 def test_mechanism_parameters_by_name(pendulum):
     mech, _ = pendulum
     m = mech.with_params(spring={"spring": {"free_length": 0.9}}, body={"link1": {"com": (0.25, 0.0, 0.01)}})

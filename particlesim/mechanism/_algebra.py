@@ -31,6 +31,7 @@ from jaxtyping import Array, Float
 from ..particles import primary_mass_matrix
 from .constraints import linear_blocks, point_free_weights, point_weights, points, quarter_turn
 from .model import Mechanism
+from .._jit import compiled
 
 __all__ = ["Prepared", "prepare", "scalar_mass_matrix", "Rows", "rows", "schur", "apply_j", "apply_minv_jt",
            "residual", "gamma", "velocity_target", "Drive", "drive_at", "SchurFactor", "factor_schur", "solve_schur",
@@ -48,6 +49,7 @@ LSQ_RTOL = 1e-8
 LSQ_REFINE = 4
 
 
+@compiled("scalar_mass_matrix")
 def scalar_mass_matrix(mech: Mechanism) -> Float[Array, "P P"]:
     """``M_s`` over all particles: each body's ``L_b`` (k x k) added at its primaries; one vmapped solve per kind."""
     topo = mech.topo
@@ -69,12 +71,14 @@ def scalar_mass_matrix(mech: Mechanism) -> Float[Array, "P P"]:
     return m_s
 
 
+@compiled("mass_matrix")
 def mass_matrix(mech: Mechanism) -> Float[Array, "3F 3F"]:
     """The constant mass matrix of the free coordinates, ``M_s[free, free] (x) I_3`` (Kronecker product)."""
     f = np.asarray(mech.topo.free, dtype=int)
     return jnp.kron(scalar_mass_matrix(mech)[np.ix_(f, f)], jnp.eye(3))
 
 
+@compiled("lumped_masses")
 def lumped_masses(mech: Mechanism) -> Float[Array, " P"]:
     """Per-particle mass carrying linear momentum and weight: ``m_bar`` of Attia eq. (25), summed over bodies."""
     return jnp.sum(scalar_mass_matrix(mech), axis=1)

@@ -28,6 +28,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .model import Mechanism, Topology
+from .._jit import compiled
 
 __all__ = ["point_weights", "point_free_weights", "constraints", "constraint_jacobian", "constraint_gamma",
            "constraint_labels", "velocity_constraints", "row_blocks", "row_incidence"]
@@ -180,6 +181,7 @@ def _state(mech: Mechanism, q, qd=None):
     return w, pts, points(mech.topo, w, vel_all)
 
 
+@compiled("constraints")
 def constraints(mech: Mechanism, q: Float[Array, " 3F"], *, t=0.0) -> Float[Array, " C"]:
     """All constraint residuals at ``q`` (zero on the constraint manifold); ``t`` matters only for driving rows."""
     return row_residuals(mech, _state(mech, q)[1], t)
@@ -190,6 +192,7 @@ def constraint_labels(mech: Mechanism) -> list[str]:
     return mech.topo.row_labels()
 
 
+@compiled("constraint_jacobian")
 def constraint_jacobian(mech: Mechanism, q: Float[Array, " 3F"], *, t=0.0) -> Float[Array, "C 3F"]:
     """``J = d constraints / dx`` in closed form, ``(C, 3F)``."""
     topo = mech.topo
@@ -208,6 +211,7 @@ def constraint_jacobian(mech: Mechanism, q: Float[Array, " 3F"], *, t=0.0) -> Fl
     return j.reshape(j.shape[0], -1)
 
 
+@compiled("velocity_constraints")
 def velocity_constraints(mech: Mechanism, q, qd, *, t=0.0) -> Float[Array, " C"]:
     """``d/dt constraints = J(q, t) qd - nu(q, t)``: zero for admissible velocities (``nu`` is zero except on
     driving rows)."""
@@ -215,6 +219,7 @@ def velocity_constraints(mech: Mechanism, q, qd, *, t=0.0) -> Float[Array, " C"]
     return jax.jvp(lambda y, s: constraints(mech, y, t=s), (q, t), (qd, jnp.ones_like(t)))[1]
 
 
+@compiled("constraint_gamma")
 def constraint_gamma(mech: Mechanism, q, qd, *, t=0.0) -> Float[Array, " C"]:
     """Right-hand side of ``J qdd = gamma``: ``gamma = -(d^2/dt^2 constraints)`` at zero acceleration (closed
     form)."""

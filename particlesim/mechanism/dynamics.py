@@ -36,11 +36,13 @@ from ._algebra import LSQ_REFINE, LSQ_RTOL
 from ._algebra import lumped_masses, mass_matrix, scalar_mass_matrix
 from .forces import generalized_point_forces, point_forces, potential_energy, torque_forces
 from .model import AppliedForce, Mechanism
+from .._jit import compiled
 
 __all__ = ["Prepared", "prepare", "mass_properties", "mass_matrix", "scalar_mass_matrix", "lumped_masses",
            "accelerations", "accelerations_and_multipliers", "kinetic_energy", "total_energy", "residuals"]
 
 
+@compiled("mass_properties")
 def mass_properties(mech: Mechanism) -> Prepared:
     """The parameter-only quantities (mass matrix, its inverse, the rows' constant parts); pass them as ``props``
     to the functions of this module to compute them once for many states."""
@@ -106,6 +108,7 @@ def _solve_kkt(prep: Prepared, r, g, f_pts, q_torque, least_squares: bool = Fals
     return sol[:n], sol[n:]
 
 
+@compiled("accelerations_and_multipliers", static=('baumgarte',))
 def accelerations_and_multipliers(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"], *,
                                   baumgarte: float = 0.0, props: Prepared | None = None) -> tuple[Array, Array]:
     """Solve for ``(qdd, lam)``; ``props`` as from :func:`mass_properties` (computed here if not given).
@@ -118,12 +121,14 @@ def accelerations_and_multipliers(mech: Mechanism, t, q: Float[Array, " 3F"], qd
     return _solve(mech, prep, t, q, qd, baumgarte)
 
 
+@compiled("accelerations", static=('baumgarte',))
 def accelerations(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"], *,
                   baumgarte: float = 0.0, props: Prepared | None = None) -> Float[Array, " 3F"]:
     """Particle accelerations ``qdd`` (see :func:`accelerations_and_multipliers`)."""
     return accelerations_and_multipliers(mech, t, q, qd, baumgarte=baumgarte, props=props)[0]
 
 
+@compiled("kinetic_energy")
 def kinetic_energy(mech: Mechanism, qd: Float[Array, " 3F"], *, props: Prepared | None = None) -> Float[Array, ""]:
     """``1/2 qd^T M qd``: equal to the bodies' rigid kinetic energy for admissible velocities."""
     ms = prepare(mech).ms if props is None else props.ms
@@ -131,10 +136,12 @@ def kinetic_energy(mech: Mechanism, qd: Float[Array, " 3F"], *, props: Prepared 
     return 0.5 * jnp.sum(v * (ms @ v))
 
 
+@compiled("total_energy")
 def total_energy(mech: Mechanism, q, qd, *, props: Prepared | None = None) -> Float[Array, ""]:
     return kinetic_energy(mech, qd, props=props) + potential_energy(mech, q)
 
 
+@compiled("residuals")
 def residuals(mech: Mechanism, q, qd, *, t=0.0) -> tuple[Array, Array]:
     """Position- and velocity-level constraint residuals ``(Phi(q, t), J qd - nu(t))`` (``t`` matters only for
     driving constraints)."""

@@ -17,6 +17,7 @@ from jaxtyping import Array, Float
 from ..spatial import frame_from_points, unskew
 from ._algebra import lumped_masses
 from .model import AppliedForce, AppliedTorque, BodyLoad, Mechanism
+from .._jit import compiled
 
 __all__ = ["generalized_forces", "point_forces", "generalized_point_forces", "torque_forces", "potential_energy",
            "spring_lengths", "body_angular_velocity", "rotational_angles"]
@@ -28,6 +29,7 @@ def _pts(mech: Mechanism, q):
     return points(mech.topo, point_weights(mech), mech.all_positions(q))
 
 
+@compiled("spring_lengths")
 def spring_lengths(mech: Mechanism, q) -> Float[Array, " S"]:
     """Current length of every spring-damper."""
     p = _pts(mech, q)
@@ -35,6 +37,7 @@ def spring_lengths(mech: Mechanism, q) -> Float[Array, " S"]:
     return jnp.linalg.norm(p[ab[:, 0]] - p[ab[:, 1]], axis=1)
 
 
+@compiled("body_angular_velocity", static=('b',))
 def body_angular_velocity(mech: Mechanism, b: int, q, qd) -> Float[Array, "3"]:
     """Angular velocity of a (spatial or planar) body from its first three primaries: ``unskew(F' F^T)``."""
     idx = np.asarray(mech.topo.body_particles[b])
@@ -194,6 +197,7 @@ def torque_forces(mech: Mechanism, t, q, qd):
     return gen
 
 
+@compiled("generalized_forces")
 def generalized_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"], *,
                        lumped=None) -> Float[Array, " 3F"]:
     """Gravity + spring-dampers + tyres + applied forces and torques, as forces on the free coordinates."""
@@ -214,6 +218,7 @@ def generalized_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Arr
     return gen if gen_t is None else gen + gen_t
 
 
+@compiled("potential_energy")
 def potential_energy(mech: Mechanism, q: Float[Array, " 3F"]) -> Float[Array, ""]:
     """Gravity, spring and (compressed) tyre energy; dampers and applied loads have none."""
     topo = mech.topo

@@ -37,6 +37,7 @@ from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur,
 from .dynamics import _solve
 from .forces import tyre_deflections
 from .model import Mechanism
+from .._jit import compiled
 
 __all__ = ["ADJOINTS", "project", "simulate_mechanism", "SwitchCrossedWarning"]
 
@@ -87,6 +88,7 @@ def project_prepared(mech: Mechanism, prep: Prepared, q, qd, t=0.0):
     return q, qd
 
 
+@compiled("project")
 def project(mech: Mechanism, q, qd, *, t=0.0, props: Prepared | None = None):
     """Project ``(q, qd)`` onto ``Phi(q, t) = 0`` and ``J qd = nu(t)`` (mass-orthogonal corrections; ``t`` matters
     only for driving constraints)."""

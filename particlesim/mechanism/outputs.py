@@ -18,6 +18,7 @@ from jaxtyping import Array, Float
 from ..errors import ModelError
 from ..spatial import unskew
 from .model import AppliedTorque, BodyLoad, Mechanism
+from .._jit import compiled
 
 __all__ = ["body_poses", "body_com_positions", "body_velocities", "body_angles", "cut_joint_forces",
            "driver_efforts", "body_reactions", "joint_reaction"]
@@ -52,6 +53,7 @@ def _rod_rotation(a, b):
     return jnp.broadcast_to(jnp.eye(3), vx.shape) + vx + vx @ vx / (1.0 + c)[..., None, None]
 
 
+@compiled("body_poses")
 def body_poses(mech: Mechanism, q: Float[Array, " 3F"]) -> tuple[Float[Array, "B 3 3"], Float[Array, "B 3"]]:
     """``(R, origin)`` of every body at state ``q``: ``p_world = R p_body + origin`` (body order of
     ``mech.topo.body_names``; :meth:`Mechanism.body_index` gives a body's row)."""
@@ -84,12 +86,14 @@ def _poses_from_positions(mech: Mechanism, r: Float[Array, "P 3"]):
     return rot, org
 
 
+@compiled("body_com_positions")
 def body_com_positions(mech: Mechanism, q: Float[Array, " 3F"]) -> Float[Array, "B 3"]:
     """World position of every body's centre of mass."""
     rot, org = body_poses(mech, q)
     return jnp.einsum("bij,bj->bi", rot, mech.body_com) + org
 
 
+@compiled("body_velocities")
 def body_velocities(mech: Mechanism, q: Float[Array, " 3F"], qd: Float[Array, " 3F"]
                     ) -> tuple[Float[Array, "B 3"], Float[Array, "B 3"]]:
     """``(v_com, omega)`` of every body: centre-of-mass velocity and angular velocity, world frame (a rod's
@@ -128,6 +132,7 @@ def primary_load_forces(mech: Mechanism, b: int, q, force, torque) -> Float[Arra
     return pull((jnp.asarray(force, dtype=r.dtype), jnp.asarray(torque, dtype=r.dtype)))[0]
 
 
+@compiled("body_angles")
 def body_angles(mech: Mechanism, q: Float[Array, " 3F"]) -> Float[Array, " B"]:
     """Rotation angle about z of every body of a planar mechanism from its given (assembly) orientation, in
     ``(-pi, pi]`` (wrapped; ``numpy.unwrap`` a trajectory), counter-clockwise positive; from the direction between
@@ -146,6 +151,7 @@ def body_angles(mech: Mechanism, q: Float[Array, " 3F"]) -> Float[Array, " B"]:
     return jnp.arctan2(cross, jnp.sum(d_l[:, :2] * d_w[:, :2], axis=1))
 
 
+@compiled("cut_joint_forces")
 def cut_joint_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"]) -> dict[str, Array]:
     """Reaction force of every cut joint ``cut_joint(a, b, name=...)`` at state ``(t, q, qd)``: the force ``(3,)``
     (global frame, N) that the ``b`` side exerts on point ``a`` (``b`` receives its opposite), from the joint's
@@ -169,6 +175,7 @@ def cut_joint_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array
     return out
 
 
+@compiled("driver_efforts")
 def driver_efforts(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"]) -> dict[str, Array]:
     """What every driver must supply at state ``(t, q, qd)`` to impose its motion: the torque (N m) about its axis
     of an angle driver, the force (N) along its axis of a position driver (positive: doing positive work when the
@@ -186,6 +193,7 @@ def driver_efforts(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, 
     return {name: tail[i] for i, name in enumerate(dr.names)}
 
 
+@compiled("body_reactions")
 def body_reactions(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"]) -> Float[Array, "B 4 3"]:
     """The force ``(3,)`` every body receives at each of its primaries (``mech.topo.body_particles`` order, padded
     with zeros to 4) from outside itself: its joints (the other bodies sharing the particle, the ground, cut joints,
@@ -265,6 +273,7 @@ def body_reactions(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, 
     return out
 
 
+@compiled("joint_reaction", static=('body', 'particles'))
 def joint_reaction(mech: Mechanism, t, q, qd, body: str, particles) -> tuple[Array, Array]:
     """Net force and moment ``((3,), (3,))`` that ``body`` receives through the listed primaries of it (the
     particles of one joint: one for a spherical joint, the two axis particles of a revolute joint), the moment

@@ -11,12 +11,15 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from .._jit import compiled
 from .dynamics import mass_matrix
+from .kinematics import _quaternion_checks
 from .model import TreeModel
 
 __all__ = ["christoffel_symbols", "coriolis_matrix"]
 
 
+@compiled("christoffel_symbols", check=_quaternion_checks, arrays_only=True)
 def christoffel_symbols(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Array, "n n n"]:
     """``c[i, j, k]`` of eq. (4) (first kind). Needs ``q`` and ``qd`` of one length (no floating base)."""
     if model.nq != model.nv:
@@ -24,10 +27,11 @@ def christoffel_symbols(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Ar
 
         raise ModelError("Christoffel symbols need one velocity per configuration entry; a floating base's "
                          "quaternion has four entries for three rotations (use coriolis_times_qdot)")
-    da = jax.jacfwd(lambda x: mass_matrix(model, x))(jnp.asarray(q, dtype=float))  # [i, j, k] = dA_ij/dq_k
+    da = jax.jacfwd(lambda x: mass_matrix.raw(model, x))(jnp.asarray(q, dtype=float))  # [i, j, k] = dA_ij/dq_k
     return 0.5 * (da + jnp.einsum("ikj->ijk", da) - jnp.einsum("jki->ijk", da))
 
 
+@compiled("coriolis_matrix", check=_quaternion_checks, arrays_only=True)
 def coriolis_matrix(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"]) -> Float[Array, "n n"]:
     """``C(q, qd)`` with ``C_ij = sum_k c_ijk qd_k`` (eq. 4)."""
-    return christoffel_symbols(model, q) @ jnp.asarray(qd)
+    return christoffel_symbols.raw(model, q) @ jnp.asarray(qd)

@@ -28,8 +28,10 @@ from .aba import UNROLL_LINKS, aba, supports_aba
 from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
+from .._jit import compiled
 from .._linalg import spd_solve
 from ..errors import ModelError
+from .kinematics import _has_quaternions
 from .model import TreeModel
 
 __all__ = [
@@ -69,7 +71,7 @@ def _check(model: TreeModel, **vectors) -> None:
 
 def _bodies(model: TreeModel, q) -> _Bodies:
     model.check_quaternions_nonzero(q)  # concrete values only
-    rot, pos = jax.lax.optimization_barrier(link_poses(model, q))
+    rot, pos = jax.lax.optimization_barrier(link_poses.raw(model, q))
     m, ms, j = unpack_params(model.inertia)
     hl = _mv(rot, ms)  # first moment about O_j, world axes
     jw = _mm(_mm(rot, j), jnp.swapaxes(rot, -1, -2))
@@ -143,23 +145,40 @@ def _rnea(model: TreeModel, b: _Bodies, qd, qdd, gravity) -> Array:
     return model.coordinate_forces(jnp.sum(b.s_w * sub[:, :3] + b.s_v * sub[:, 3:], -1))
 
 
+def _concrete_checks(model: TreeModel, arrays: dict) -> None:
+    """Checks before a compiled entry is dispatched, for models with quaternions: the shapes of the state vectors,
+    then concrete values (a zero quaternion would give NaN). Other models need none here: shapes are checked when
+    the entry is traced."""
+    if _has_quaternions(model.kinds):
+        _check(model, **{k: v for k, v in arrays.items() if k in ("q", "qd", "qdd", "tau")})
+        model.check_quaternions_nonzero(arrays["q"])
+
+
+@compiled("mass_matrix", check=_concrete_checks, arrays_only=True)
 def mass_matrix(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Array, "n n"]:
     """The inertia matrix ``A(q)`` of eq. (2), including rotor inertia ``I_a`` on the diagonal (eq. 18)."""
+    _check(model, q=q)
     return _mass_matrix(model, _bodies(model, jnp.asarray(q)))
 
 
+@compiled("bias_forces", check=_concrete_checks, arrays_only=True)
 def bias_forces(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"]) -> Float[Array, " n"]:
     """``C(q, qd) qd + Q(q)`` (Coriolis, centrifugal and gravity torques; no friction)."""
+    _check(model, q=q, qd=qd)
     return _rnea(model, _bodies(model, jnp.asarray(q)), jnp.asarray(qd), None, model.gravity)
 
 
+@compiled("coriolis_times_qdot", check=_concrete_checks, arrays_only=True)
 def coriolis_times_qdot(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"]) -> Float[Array, " n"]:
     """``C(q, qd) qd`` alone (no gravity); equals ``coriolis_matrix(model, q, qd) @ qd``."""
+    _check(model, q=q, qd=qd)
     return _rnea(model, _bodies(model, jnp.asarray(q)), jnp.asarray(qd), None, None)
 
 
+@compiled("gravity_torques", check=_concrete_checks, arrays_only=True)
 def gravity_torques(model: TreeModel, q: Float[ArrayLike, " n"]) -> Float[Array, " n"]:
     """``Q(q) = dU/dq`` (eq. 5), as the joint torques holding the tree still against gravity."""
+    _check(model, q=q)
     return _rnea(model, _bodies(model, jnp.asarray(q)), None, None, model.gravity)
 
 
@@ -198,6 +217,7 @@ def limit_torques(model: TreeModel, q: Float[ArrayLike, " nq"], qd: Float[ArrayL
     return jnp.where(x != 0.0, -k * x - c * qd, 0.0)
 
 
+@compiled("inverse_dynamics", static=("smooth_friction",), check=_concrete_checks, arrays_only=True)
 def inverse_dynamics(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"],
                      qdd: Float[ArrayLike, " n"], *, smooth_friction: Optional[float] = None) -> Float[Array, " n"]:
     """``tau = A qdd + C qd + Q + Gamma_f`` (eqs. 3, 17, 18)."""
@@ -236,6 +256,13 @@ def _forward_dynamics(model: TreeModel, q, qd, tau, smooth_friction):
     return spd_solve(_mass_matrix(model, b), rhs - _rnea(model, b, qd, None, model.gravity))
 
 
+@compiled("forward_dynamics", static=("smooth_friction",), check=_concrete_checks, arrays_only=True)
+def _one_state(model: TreeModel, q, qd, tau, smooth_friction=None):
+    """One state, checked and compiled (the entry :func:`forward_dynamics` dispatches to)."""
+    _check(model, q=q, qd=qd, tau=tau)
+    return _forward_dynamics(model, q, qd, tau, smooth_friction)
+
+
 def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[ArrayLike, "... nv"],
                      tau: Float[ArrayLike, "... nv"], *, smooth_friction: Optional[float] = None
                      ) -> Float[Array, "... nv"]:
@@ -251,10 +278,9 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     External wrenches enter through ``tau``: add :func:`~.kinematics.wrench_torques` (``J^T f``, eq. 16).
     ``smooth_friction=eps`` replaces ``sign(qd)`` by ``tanh(qd / eps)`` (differentiable at ``qd = 0``).
     """
+    if all(jnp.ndim(v) <= 1 for v in (q, qd, tau)):
+        return _one_state(model, q, qd, tau, smooth_friction)
     q, qd, tau = jnp.asarray(q), jnp.asarray(qd), jnp.asarray(tau)
-    if q.ndim <= 1 and qd.ndim <= 1 and tau.ndim <= 1:
-        _check(model, q=q, qd=qd, tau=tau)
-        return _forward_dynamics(model, q, qd, tau, smooth_friction)
     for name, v in (("q", q), ("qd", qd), ("tau", tau)):
         n = model.nq if name == "q" else model.nv
         if v.ndim == 0 or v.shape[-1] != n:

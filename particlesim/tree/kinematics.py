@@ -9,10 +9,13 @@ over the angular velocity of link ``j``: ``[v; w] = J_j qd`` (the report's ``\\m
 
 from __future__ import annotations
 
+import functools
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._jit import compiled
 from ..errors import ModelError
 from ..spatial import quaternion_to_matrix, unit_axis_rotations
 from .model import BALL, FREE, TreeModel
@@ -71,6 +74,20 @@ def joint_transforms(model: TreeModel, q: Float[ArrayLike, " n"]):
     return r, p
 
 
+@functools.lru_cache(maxsize=256)
+def _has_quaternions(kinds: tuple) -> bool:
+    return FREE in kinds or BALL in kinds
+
+
+def _quaternion_checks(model: TreeModel, arrays: dict) -> None:
+    """Before dispatch: a concrete zero quaternion is named (the compiled function would return NaN)."""
+    if _has_quaternions(model.kinds):
+        q = arrays["q"]
+        if jnp.shape(q)[-1:] == (model.nq,):
+            model.check_quaternions_nonzero(q)
+
+
+@compiled("link_poses", check=_quaternion_checks, arrays_only=True)
 def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
     """World poses ``(R (n,3,3), p (n,3))`` of all link frames (forward kinematics, parents first)."""
     r_rel, p_rel = joint_transforms(model, q)
@@ -85,6 +102,7 @@ def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
     return jnp.stack(rs), jnp.stack(ps)
 
 
+@compiled("link_velocities", check=_quaternion_checks, arrays_only=True)
 def link_velocities(model: TreeModel, q: Float[ArrayLike, " n"], qd: Float[ArrayLike, " n"]):
     """Angular and linear velocities ``(w (n,3), v (n,3))`` of the link frames, each in its own link axes.
 
@@ -162,10 +180,11 @@ def _frame_rotation(rot, frame: str):
     raise ModelError(f"unknown Jacobian frame {frame!r} (expected 'world' or 'local')")
 
 
+@compiled("frame_pose", static=("name",), check=_quaternion_checks, arrays_only=True)
 def frame_pose(model: TreeModel, q: Float[ArrayLike, " n"], name) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:
     """World pose ``(R, p)`` of a link (index or name) or of a frame fixed to one (a URDF link merged by a fixed
     joint: ``tool0``, ``panda_hand``, ...)."""
-    rot, pos = link_poses(model, q)
+    rot, pos = link_poses.raw(model, q)
     fr = model.frame(name) if isinstance(name, str) else None
     if fr is None:
         j = model.link_index(name)
@@ -176,13 +195,14 @@ def frame_pose(model: TreeModel, q: Float[ArrayLike, " n"], name) -> tuple[Float
     return rot[owner] @ r, pos[owner] + rot[owner] @ p
 
 
+@compiled("link_jacobian", static=("link", "frame"), check=_quaternion_checks, arrays_only=True)
 def link_jacobian(model: TreeModel, q: Float[ArrayLike, " n"], link, *, frame: str = "world") -> Float[Array, "6 n"]:
     """The 6 x n Jacobian of link ``link`` (index or name, or a frame fixed to a link): ``[v_O; w] = J qd`` with
     ``v_O`` the velocity of its origin, in world or its own axes (§3)."""
     fr = model.frame(link) if isinstance(link, str) else None
     if fr is not None:
         owner, r, p = fr
-        rot, pos = link_poses(model, q)
+        rot, pos = link_poses.raw(model, q)
         if owner < 0:
             return jnp.zeros((6, model.nv))
         jac = link_jacobians(model, rot, pos)[owner]
@@ -194,7 +214,7 @@ def link_jacobian(model: TreeModel, q: Float[ArrayLike, " n"], link, *, frame: s
             jac = jnp.concatenate([rt @ jac[:3], rt @ jac[3:]], axis=0)
         return jac
     j = model.link_index(link)
-    rot, pos = link_poses(model, q)
+    rot, pos = link_poses.raw(model, q)
     jac = link_jacobians(model, rot, pos)[j]
     rt = _frame_rotation(rot[j], frame)
     if rt is not None:
@@ -202,6 +222,7 @@ def link_jacobian(model: TreeModel, q: Float[ArrayLike, " n"], link, *, frame: s
     return jac
 
 
+@compiled("wrench_torques", static=("link", "frame"), check=_quaternion_checks, arrays_only=True)
 def wrench_torques(model: TreeModel, q: Float[ArrayLike, " n"], link, wrench: Float[ArrayLike, "6"], *,
                    frame: str = "world") -> Float[Array, " n"]:
     """Joint torques ``J_j^T f`` of a wrench ``f = [force; moment]`` acting on ``link`` at its origin (eq. 16).
@@ -212,7 +233,7 @@ def wrench_torques(model: TreeModel, q: Float[ArrayLike, " n"], link, wrench: Fl
     w = jnp.asarray(wrench, dtype=float)
     if w.shape != (6,):
         raise ModelError(f"wrench must have shape (6,) = [force; moment], got {w.shape}")
-    return link_jacobian(model, q, link, frame=frame).T @ w
+    return link_jacobian.raw(model, q, link, frame=frame).T @ w
 
 
 def _quat_mul(a, b):
