@@ -230,8 +230,11 @@ EPS32 = float(np.finfo(np.float32).eps)
 #: Forward dynamics at random states: max |qdd32 - qdd64| / max |qdd64| <= this factor x cond(A) x eps32.
 F32_ACC_FACTOR = 1.0
 #: 1 s rollout of the hanging Krang (Tsit5, rtol = atol = 1e-6 in both precisions) against a float64 Tsit5
-#: reference at 1e-12: largest joint-angle error [rad].
-F32_ROLLOUT_ATOL = 1e-2
+#: reference at 1e-12: largest joint-angle error [rad]. The float32 figure depends on the CPU's rounding (fused
+#: multiply-adds, vector width): 1.1e-3 rad on one machine, 1.6e-2 rad on another with the same code, on a
+#: trajectory whose mass matrix reaches cond(A) = 4.9e4 and whose accelerations reach 620 rad/s^2. The bound guards
+#: against a failed float32 rollout (off by more than about 3 degrees), not one CPU's round-off.
+F32_ROLLOUT_ATOL = 5e-2
 F64_ROLLOUT_ATOL = 1e-3  # the same run in float64: the truncation error alone
 F32_RTOL = 1e-6
 
