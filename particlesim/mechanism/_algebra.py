@@ -283,10 +283,9 @@ def schur(prep: Prepared, r: Rows) -> Float[Array, "C C"]:
     e = _partner(r.vu, prep.turn)
     # h[r, q] = sum_{i,j} A[(i, r), (j, q)] E[(i, r)] . E[(j, q)], written as outer products of the three
     # coordinates: one elementwise kernel (a dot over 3 plus a block reduction costs several, some of them slow).
-    eb = (e[:n], e[n:])
+    g = (e @ e.T).reshape(2, n, 2, n)  # Gram matrix of E: one small dense product
     ab = prep.a.reshape(2, n, 2, n)
-    h = sum(ab[i, :, j, :] * sum(eb[i][:, k, None] * eb[j][None, :, k] for k in range(3))
-            for i in range(2) for j in range(2))
+    h = sum(ab[i, :, j, :] * g[i, :, j, :] for i in range(2) for j in range(2))
     s_dd = prep.scale[:, None] * prep.scale[None, :] * h
     if prep.c_lin.shape[0] == 0:
         s = s_dd
