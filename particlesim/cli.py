@@ -33,7 +33,7 @@ def _krang(out: Path) -> None:
     from .reports.krang_fall import krang_fall
 
     print("\nKrang on fixed wheels (18 joints) falling under gravity for 2 s, against its MuJoCo C twin ...")
-    f = krang_fall(out, progress=True)
+    f = krang_fall(out, progress=sys.stdout.isatty())  # a progress bar only on a terminal, not in logs
     ours, mj = f["ours"], f["mujoco_c"]
     print(f"  particlesim dopri5 (rtol 1e-10): {ours['accepted_steps']} steps, run {ours['run_s']:.2f} s "
           f"(compile + first run {ours['compile_plus_first_run_s']:.1f} s)")
@@ -49,7 +49,7 @@ def _quarter_car(out: Path) -> None:
     from .reports.quarter_car import DURATION, quarter_car_report
 
     print(f"\nQuarter-car double wishbone (Attia 3): free response from rest, {DURATION:g} s ...")
-    f = quarter_car_report(out, progress=True)
+    f = quarter_car_report(out, progress=sys.stdout.isatty())
     print(f"  {f['particles_free']} free particles, {f['constraints']} constraints, {f['degrees_of_freedom']} degrees "
           f"of freedom; {f['solver']} rtol {f['rtol']:g}: {f['accepted_steps']} steps, run {f['run_s']:.2f} s "
           f"(compile {f['compile_s']:.1f} s)")
