@@ -81,6 +81,64 @@ print(json.dumps({"call_s": med(lambda: call(model, q, qd, tau)), "floor_s": med
 """
 
 
+_ONE_CORE_SCRIPT = """
+import json, os, sys, time
+os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # this process, and every thread it starts, on one core
+import numpy as np, jax, jax.numpy as jnp, mujoco, pinocchio as pin
+import particlesim
+from mujoco.batch import Batch
+from particlesim.data import data_dir
+from particlesim.io import load_urdf
+from particlesim.tree import forward_dynamics
+from particlesim.twins.urdf import JointMap, mujoco_model, urdf_for_mujoco
+urdf, gravity, batch, laps = sys.argv[1], tuple(json.loads(sys.argv[2])), int(sys.argv[3]), int(sys.argv[4])
+path = data_dir() / urdf
+model = load_urdf(path, gravity=gravity)
+rng = np.random.default_rng(0)
+n = model.nq
+qs, qds = rng.uniform(-np.pi, np.pi, (batch, n)), rng.normal(0.0, 1.0, (batch, n))
+taus = rng.normal(0.0, 10.0, (batch, n))
+jq, jqd, jtau = (jnp.asarray(x) for x in (qs, qds, taus))
+pm = pin.buildModelFromXML(urdf_for_mujoco(path))
+pm.gravity.linear = np.asarray(gravity)
+pool = pin.ModelPool(pm, 1)
+qT, qdT, tauT = (np.asfortranarray(a.T) for a in (qs, qds, taus))
+aT = np.zeros_like(qdT, order="F")
+m = mujoco_model(path, timestep=1e-4, integrator="rk4")
+jm = JointMap(m, model.joint_names)
+mb = Batch(m, nsim=batch, nthread=1)
+mb.qpos, mb.qvel, mb.qfrc_applied = (np.asarray(jm.to_mujoco(x)) for x in (qs, qds, taus))
+t0 = time.perf_counter()
+ours = np.asarray(forward_dynamics(model, jq, jqd, jtau))
+compile_s = time.perf_counter() - t0
+pin.abaInParallel(1, pool, qT, qdT, tauT, aT)
+err = float(np.max(np.abs(ours.T - aT)) / np.max(np.abs(aT)))
+fns = {"ours": lambda: jax.block_until_ready(forward_dynamics(model, jq, jqd, jtau)),
+       "pin": lambda: pin.abaInParallel(1, pool, qT, qdT, tauT, aT), "mujoco": mb.forward}
+times = {k: [] for k in fns}
+for _ in range(laps):
+    for k, fn in fns.items():
+        t = time.perf_counter()
+        for _ in range(3):
+            fn()
+        times[k].append((time.perf_counter() - t) / 3 / batch)
+print(json.dumps({"times": times, "compile_s": compile_s, "err_vs_abaInParallel": err,
+                  "cores": sorted(os.sched_getaffinity(0))}))
+"""
+
+
+def _one_core_batch() -> dict:
+    """The batched comparison at equal cores, one: a fresh process pinned to one core (XLA's thread pool, which
+    otherwise runs independent kernels of our batch on both cores, included) runs ours, Pinocchio's
+    ``abaInParallel`` on 1 thread and MuJoCo C's ``Batch.forward`` on 1 thread, interleaved lap by lap."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _ONE_CORE_SCRIPT, URDF, json.dumps(list(GRAVITY)), str(BATCH),
+                          str(INTERLEAVED_LAPS)], check=True, capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def _synchronous_single_calls() -> dict:
     """Median time of one jitted forward-dynamics call and of the dispatch floor with asynchronous CPU dispatch
     off, measured in a fresh process (``jax_cpu_enable_async_dispatch`` is read when the CPU client starts)."""
@@ -157,6 +215,22 @@ def run() -> dict:
     rows.append(_row(f"ours forward_dynamics (batch of {BATCH}, articulated-body sweeps)", t / BATCH, "per state",
                      c2b))
 
+    # Order: everything single-threaded first (ours, Pinocchio and MuJoCo C on one thread, their interleaved
+    # comparison, our rollouts), then the two-thread runs and MJX, whose thread pools and large programs left
+    # later measurements of this process slower than a fresh one's.
+    # Ours: diffrax rollouts of 1 s (falling from a random pose, no input).
+    q0, qd0 = jnp.asarray(0.5 * rng.uniform(-1, 1, n)), jnp.zeros(n)
+    dyn = lambda p, q, qd, tau: forward_dynamics(p, q, qd, tau)  # noqa: E731
+    for solver, rtol, atol in (("tsit5", 1e-8, 1e-10), ("dopri8", 1e-12, 1e-12)):
+        def ours_roll(q0, qd0, solver=solver, rtol=rtol, atol=atol):
+            s = simulate(dyn, model, q0, qd0, 0.0, 1.0, solver=solver, rtol=rtol, atol=atol)
+            return s.q[-1], s.steps
+
+        roll_o, c5 = _compile(ours_roll, q0, qd0)
+        t = median_time(lambda: roll_o(q0, qd0), number=1, repeat=3, block=jax.block_until_ready)
+        nsteps = int(roll_o(q0, qd0)[1])
+        rows.append(_row(f"ours rollout {solver} rtol {rtol:g}", t, "per simulated s", c5, f"{nsteps} steps"))
+
     # Pinocchio ABA.
     import pinocchio as pin
 
@@ -175,10 +249,8 @@ def run() -> dict:
     pool = pin.ModelPool(pm, 2)
     qT, qdT, tauT = (np.asfortranarray(a.T) for a in (qs, qds, taus))
     aT = np.zeros_like(qdT, order="F")
-    for threads in (1, 2):
-        t = median_time(lambda th=threads: pin.abaInParallel(th, pool, qT, qdT, tauT, aT), number=3) / BATCH
-        rows.append(_row(f"Pinocchio abaInParallel (C++, {BATCH} states, {threads} thread{'s' * (threads > 1)})",
-                         t, "per state"))
+    t = median_time(lambda: pin.abaInParallel(1, pool, qT, qdT, tauT, aT), number=3) / BATCH
+    rows.append(_row(f"Pinocchio abaInParallel (C++, {BATCH} states, 1 thread)", t, "per state"))
     np.testing.assert_allclose(aT[:, 0], pin.aba(pm, pdata, qs[0], qds[0], taus[0]), rtol=1e-12, atol=1e-9)
     def rel_err(k):
         ref = pin.aba(pm, pdata, qs[k], qds[k], taus[k])
@@ -188,7 +260,7 @@ def run() -> dict:
     batch_out = np.asarray(swept(model, jq, jqd, jtau))
     err_batch = max(float(np.max(np.abs(aT[:, k] - batch_out[k])) / np.max(np.abs(aT[:, k]))) for k in range(BATCH))
 
-    # MJX forward, vmapped.
+    # The MuJoCo twin (MuJoCo C's Batch and MJX), its joint map and the states in its order.
     from mujoco import mjx
 
     m = mujoco_model(path, timestep=DT, integrator="rk4")
@@ -197,50 +269,81 @@ def run() -> dict:
     d0 = mjx.put_data(m, mujoco.MjData(m))
     mq, mqd, mtau = (jnp.asarray(jm.to_mujoco(x)) for x in (qs, qds, taus))
 
+    # MuJoCo C's own batch (mujoco.batch.Batch.forward: mj_forward per simulation on a thread pool).
+    from mujoco.batch import Batch
+
+    def mujoco_batch(threads, row=True):
+        """A Batch of the states on ``threads`` threads (and its Batch.forward row), and its qacc error."""
+        batch = Batch(m, nsim=BATCH, nthread=threads)
+        batch.qpos, batch.qvel, batch.qfrc_applied = (np.asarray(x) for x in (mq, mqd, mtau))
+        bound = batch.bind("qacc")  # a derived field is refreshed by the calls after it is bound
+        t = median_time(batch.forward, number=3)
+        if row:
+            rows.append(_row(f"MuJoCo C Batch.forward ({BATCH} states, {threads} thread{'s' * (threads > 1)})",
+                             t / BATCH, "per state"))
+        qacc = jm.from_mujoco(np.asarray(bound))
+        return batch, max(float(np.max(np.abs(qacc[k] - aT[:, k])) / np.max(np.abs(aT[:, k]))) for k in range(BATCH))
+
+    mj_batch1, err_mj = mujoco_batch(1)
+
+    # Equal cores. One core: a fresh process pinned to one core (ours, abaInParallel 1 thread, Batch.forward 1
+    # thread, interleaved). The rows above ran unpinned, where XLA spreads independent kernels of our batch over both
+    # cores: they are relabelled and the one-core rows added.
+    one = _one_core_batch()
+    lap = {k: np.asarray(v) for k, v in one["times"].items()}
+    for r in rows:
+        if r["name"].startswith(f"ours forward_dynamics (batch of {BATCH}"):
+            r["name"] = f"ours forward_dynamics (batch of {BATCH}, articulated-body sweeps, process unpinned)"
+        if r["name"].endswith("1 thread)"):
+            r["name"] = r["name"][:-1] + ", process unpinned)"
+    note = f"fresh process pinned to core {one['cores']}, median of {INTERLEAVED_LAPS} interleaved laps"
+    rows.append(_row(f"ours forward_dynamics (batch of {BATCH}, one core)", float(np.median(lap["ours"])),
+                     "per state", one["compile_s"], note))
+    rows.append(_row(f"Pinocchio abaInParallel (C++, {BATCH} states, 1 thread, one core)",
+                     float(np.median(lap["pin"])), "per state", note=note))
+    rows.append(_row(f"MuJoCo C Batch.forward ({BATCH} states, 1 thread, one core)", float(np.median(lap["mujoco"])),
+                     "per state", note=note))
+
+    # Two cores: ours unpinned against the two-thread runs, interleaved in this process.
+    mj_batch2, err2 = mujoco_batch(2, row=False)
+    err_mj = max(err_mj, err2)
+    contenders = {
+        "ours": lambda: jax.block_until_ready(swept(model, jq, jqd, jtau)),
+        "pin": lambda: pin.abaInParallel(2, pool, qT, qdT, tauT, aT),
+        "mujoco": mj_batch2.forward,
+    }
+    two = {k: [] for k in contenders}
+    for _ in range(INTERLEAVED_LAPS):
+        for name, fn in contenders.items():
+            t0 = time.perf_counter()
+            for _ in range(3):
+                fn()
+            two[name].append((time.perf_counter() - t0) / 3 / BATCH)
+    two = {k: np.asarray(v) for k, v in two.items()}
+    note2 = f"this process, median of {INTERLEAVED_LAPS} interleaved laps"
+    rows.append(_row(f"ours forward_dynamics (batch of {BATCH}, two cores)", float(np.median(two["ours"])),
+                     "per state", note=note2))
+    rows.append(_row(f"Pinocchio abaInParallel (C++, {BATCH} states, 2 threads)", float(np.median(two["pin"])),
+                     "per state", note=note2))
+    rows.append(_row(f"MuJoCo C Batch.forward ({BATCH} states, 2 threads)", float(np.median(two["mujoco"])),
+                     "per state", note=note2))
+
+    def quartiles(x):
+        return [float(np.percentile(x, p)) for p in (25, 50, 75)]
+
+    lap_ratios = {"one_core_vs_abaInParallel": quartiles(lap["ours"] / lap["pin"]),
+                  "one_core_vs_Batch_forward": quartiles(lap["ours"] / lap["mujoco"]),
+                  "two_cores_vs_abaInParallel": quartiles(two["ours"] / two["pin"]),
+                  "two_cores_vs_Batch_forward": quartiles(two["ours"] / two["mujoco"])}
+    err_one_core = one["err_vs_abaInParallel"]
+
+    # MJX forward, vmapped.
     def mjx_fd(q, qd, tau):
         return mjx.forward(mx, d0.replace(qpos=q, qvel=qd, qfrc_applied=tau)).qacc
 
     mjx_b, c3 = _compile(jax.vmap(mjx_fd), mq, mqd, mtau)
     t = median_time(lambda: mjx_b(mq, mqd, mtau), number=2, block=jax.block_until_ready)
     rows.append(_row(f"MJX forward (vmap {BATCH})", t / BATCH, "per state", c3))
-
-    # MuJoCo C's own batch (mujoco.batch.Batch.forward: mj_forward per simulation on a thread pool).
-    from mujoco.batch import Batch
-
-    err_mj = 0.0
-    for threads in (1, 2):
-        batch = Batch(m, nsim=BATCH, nthread=threads)
-        batch.qpos, batch.qvel, batch.qfrc_applied = (np.asarray(x) for x in (mq, mqd, mtau))
-        bound = batch.bind("qacc")  # a derived field is refreshed by the calls after it is bound
-        t = median_time(batch.forward, number=3)
-        rows.append(_row(f"MuJoCo C Batch.forward ({BATCH} states, {threads} thread{'s' * (threads > 1)})",
-                         t / BATCH, "per state"))
-        qacc = jm.from_mujoco(np.asarray(bound))
-        err_mj = max(err_mj, max(float(np.max(np.abs(qacc[k] - aT[:, k])) / np.max(np.abs(aT[:, k])))
-                                 for k in range(BATCH)))
-        if threads == 1:
-            mj_batch1 = batch
-
-    # The one-thread batched rows again, interleaved (ours, Pinocchio, MuJoCo, ours, ...) so that the machine's
-    # drift between separately timed rows does not decide the ratios; these medians replace the rows above.
-    contenders = {
-        f"ours forward_dynamics (batch of {BATCH}, articulated-body sweeps)":
-            lambda: jax.block_until_ready(swept(model, jq, jqd, jtau)),
-        f"Pinocchio abaInParallel (C++, {BATCH} states, 1 thread)":
-            lambda: pin.abaInParallel(1, pool, qT, qdT, tauT, aT),
-        f"MuJoCo C Batch.forward ({BATCH} states, 1 thread)": mj_batch1.forward,
-    }
-    laps = {k: [] for k in contenders}
-    for _ in range(INTERLEAVED_LAPS):
-        for name, fn in contenders.items():
-            t0 = time.perf_counter()
-            for _ in range(3):
-                fn()
-            laps[name].append((time.perf_counter() - t0) / 3 / BATCH)
-    for r in rows:
-        if r["name"] in laps:
-            r["time_us"] = float(np.median(laps[r["name"]])) * 1e6
-            r["note"] = f"median of {INTERLEAVED_LAPS} interleaved laps"
 
     # MuJoCo C, RK4 steps in its native loop.
     from ._native import Rollout, initial_state
@@ -261,19 +364,6 @@ def run() -> dict:
     t = median_time(lambda: roll(dstart), number=1, repeat=3, block=jax.block_until_ready) / steps
     rows.append(_row("MJX RK4 rollout (jit scan)", t, "per step", c4))
 
-    # Ours: diffrax rollouts of 1 s (falling from a random pose, no input).
-    q0, qd0 = jnp.asarray(0.5 * rng.uniform(-1, 1, n)), jnp.zeros(n)
-    dyn = lambda p, q, qd, tau: forward_dynamics(p, q, qd, tau)  # noqa: E731
-    for solver, rtol, atol in (("tsit5", 1e-8, 1e-10), ("dopri8", 1e-12, 1e-12)):
-        def ours_roll(q0, qd0, solver=solver, rtol=rtol, atol=atol):
-            s = simulate(dyn, model, q0, qd0, 0.0, 1.0, solver=solver, rtol=rtol, atol=atol)
-            return s.q[-1], s.steps
-
-        roll_o, c5 = _compile(ours_roll, q0, qd0)
-        t = median_time(lambda: roll_o(q0, qd0), number=1, repeat=3, block=jax.block_until_ready)
-        nsteps = int(roll_o(q0, qd0)[1])
-        rows.append(_row(f"ours rollout {solver} rtol {rtol:g}", t, "per simulated s", c5, f"{nsteps} steps"))
-
     for r in rows:
         r["ratio_vs_aba"] = r["time_us"] / (t_aba * 1e6) if r["unit"] in ("per call", "per state") else None
     return {
@@ -284,6 +374,8 @@ def run() -> dict:
         "checks": {"max_rel_qdd_diff_ours_vs_pinocchio": err,
                    "max_rel_qdd_diff_ours_batch_vs_abaInParallel_all_states": err_batch,
                    "max_rel_qdd_diff_mujoco_batch_vs_abaInParallel_all_states": err_mj},
+        "batched_lap_ratios_quartiles": lap_ratios,
+        "max_rel_qdd_diff_ours_one_core_vs_abaInParallel": err_one_core,
         "targets": {"batched_vs_aba": 1.0, "single_vs_aba": 3.0, "compile_s": 5.0},
     }
 
@@ -331,21 +423,38 @@ def markdown(results: dict) -> str:
         note = f" ({r['note']})" if r["note"] else ""
         lines.append(f"| {r['name']}{note} | {t} | {r['unit']} | {ratio} | {comp} |")
     by = {r["name"]: r["time_us"] for r in results["rows"]}
-    swept = next(v for k, v in by.items() if "articulated-body sweeps" in k)
-    vm = next(v for k, v in by.items() if k.startswith("ours forward_dynamics (vmap"))
-    par1 = next(v for k, v in by.items() if "abaInParallel" in k and "1 thread" in k)
-    par2 = next(v for k, v in by.items() if "abaInParallel" in k and "2 threads" in k)
-    mj = next(v for k, v in by.items() if k.startswith("MJX forward"))
-    mb1 = next((v for k, v in by.items() if "Batch.forward" in k and "1 thread" in k), float("nan"))
-    mb2 = next((v for k, v in by.items() if "Batch.forward" in k and "2 threads" in k), float("nan"))
     chk = results["checks"]
-    lines += ["", f"Batched forward dynamics per state: ours (batch passed directly, one thread) {swept:.2f} µs = "
-              f"{swept / par1:.2f}× Pinocchio `abaInParallel` on 1 thread ({par1:.2f} µs; goal ≤ 1.0×), "
-              f"{swept / par2:.2f}× on 2 threads; {swept / mb1:.2f}× MuJoCo C `Batch.forward` on 1 thread ({mb1:.2f} µs; "
-              f"{mb2:.2f} µs on 2); the vmapped one-state path {vm:.2f} µs; MJX {mj:.2f} µs. "
-              f"Max |q̈ ours − ABA| / max |q̈|: {chk['max_rel_qdd_diff_ours_vs_pinocchio']:.1e} over 16 single states, "
-              f"{chk.get('max_rel_qdd_diff_ours_batch_vs_abaInParallel_all_states', float('nan')):.1e} over the "
-              f"whole batch.", ""]
+    lr = results.get("batched_lap_ratios_quartiles", {})
+    vm = next(v for k, v in by.items() if k.startswith("ours forward_dynamics (vmap"))
+    mj = next(v for k, v in by.items() if k.startswith("MJX forward"))
+    one_core = {k: v for k, v in by.items() if k.endswith("one core)")}
+    if one_core and "one_core_vs_abaInParallel" in lr:
+        ours1 = next(v for k, v in one_core.items() if k.startswith("ours"))
+        pin1 = next(v for k, v in one_core.items() if "abaInParallel" in k)
+        mj1 = next(v for k, v in one_core.items() if "Batch.forward" in k)
+        ours2 = next(v for k, v in by.items() if k.startswith("ours") and k.endswith("two cores)"))
+        pin2 = next(v for k, v in by.items() if "abaInParallel" in k and "2 threads" in k)
+        mj2 = next(v for k, v in by.items() if "Batch.forward" in k and "2 threads" in k)
+        a, b, c, d = (lr[k] for k in ("one_core_vs_abaInParallel", "one_core_vs_Batch_forward",
+                                      "two_cores_vs_abaInParallel", "two_cores_vs_Batch_forward"))
+        lines += ["", f"Batched forward dynamics per state at equal cores (goal ≤ 1.0× `abaInParallel`). One core (a "
+                  f"fresh process pinned to one core): ours {ours1:.2f} µs, Pinocchio `abaInParallel` {pin1:.2f} µs, "
+                  f"MuJoCo C `Batch.forward` {mj1:.2f} µs; per interleaved lap ours / `abaInParallel` median "
+                  f"{a[1]:.2f} (quartiles {a[0]:.2f}–{a[2]:.2f}), ours / `Batch.forward` {b[1]:.2f} ({b[0]:.2f}–"
+                  f"{b[2]:.2f}). Two cores: ours {ours2:.2f} µs, `abaInParallel` {pin2:.2f} µs, `Batch.forward` "
+                  f"{mj2:.2f} µs; per lap {c[1]:.2f} ({c[0]:.2f}–{c[2]:.2f}) and {d[1]:.2f} ({d[0]:.2f}–{d[2]:.2f}). "
+                  f"Unpinned, XLA runs independent kernels of our batch on both cores: the rows marked \"process "
+                  f"unpinned\" are not one-thread figures. The vmapped one-state path {vm:.2f} µs; MJX {mj:.2f} µs. "
+                  f"Max |q̈ ours − ABA| / max |q̈|: {chk['max_rel_qdd_diff_ours_vs_pinocchio']:.1e} over 16 single "
+                  f"states, {chk.get('max_rel_qdd_diff_ours_batch_vs_abaInParallel_all_states', float('nan')):.1e} "
+                  f"over the whole batch.", ""]
+    else:  # results saved before the one-core rows existed
+        swept = next(v for k, v in by.items() if "articulated-body sweeps" in k)
+        par1 = next(v for k, v in by.items() if "abaInParallel" in k and "1 thread" in k)
+        lines += ["", f"Batched forward dynamics per state: ours (batch passed directly) {swept:.2f} µs = "
+                  f"{swept / par1:.2f}× Pinocchio `abaInParallel` on 1 thread ({par1:.2f} µs; goal ≤ 1.0×; ours ran "
+                  f"unpinned, where XLA may use both cores); the vmapped one-state path {vm:.2f} µs; MJX {mj:.2f} µs.",
+                  ""]
     one = by.get("ours forward_dynamics (1 call, jit, model as argument)")
     one_sync = by.get("ours forward_dynamics (1 call, jit, synchronous CPU dispatch)")
     if one is not None and one_sync is not None:
