@@ -30,9 +30,9 @@ __all__ = ["compiled", "cpu_options"]
 
 #: XLA options for our own compiled entries on the CPU (per executable: nothing global is changed). Reductions go to
 #: the same YNNPACK kernels XLA already uses for dots and elementwise loops: the articulated-body sweeps of a batch,
-#: whose reductions run over the trailing batch axis, cost 21-24 % less per state (Krang, 1024 states, interleaved
-#: with Pinocchio's ``abaInParallel``; ``benchmarks/krang_dynamics.py``) and compile in half the time; one-state
-#: programs are unchanged within noise. Results agree to round-off (the tests hold at their tolerances).
+#: whose reductions run over the trailing batch axis, cost 5-20 % less per state in interleaved runs (Krang, 1024
+#: states); compile time and one-state programs are unchanged within noise, so only the batch entry uses them.
+#: Results agree to round-off (the tests hold at their tolerances).
 CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type":
                "LIBRARY_FUSION_TYPE_DOT,LIBRARY_FUSION_TYPE_ELTWISE,LIBRARY_FUSION_TYPE_REDUCE"}
 
