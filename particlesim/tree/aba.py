@@ -16,7 +16,8 @@ over the batch; under ``jax.vmap`` of a one-state function the batch would come 
 loop over axes of length 3 or 6. Trees up to :data:`UNROLL_LINKS` links have their sweeps written out link by link
 (the fastest program; compile time grows with the tree); larger trees run each sweep as one ``lax.scan`` over the
 links with one stacked buffer (sweeps 1 and 3 read the parent's row, sweep 2 pulls the children's rows; one row
-written per step): compile time flat in N, cost per state O(N).
+written per step): compile time flat in N, cost per state O(N). One state of a large tree takes
+:func:`aba_one_state`: the same sweeps with only the recursions in loops and the link terms vectorised over links.
 
 Covers trees of revolute and prismatic joints (rotor inertia, viscous and Coulomb friction, joint springs and soft
 limits as generalised forces); models with mimic, free or ball joints use the composite-inertia path.
@@ -34,7 +35,7 @@ from jaxtyping import Array
 from ..inertia import unpack_params
 from .model import PRISMATIC, REVOLUTE, TreeModel
 
-__all__ = ["UNROLL_LINKS", "supports_aba", "aba"]
+__all__ = ["UNROLL_LINKS", "supports_aba", "aba", "aba_one_state"]
 
 
 @functools.lru_cache(maxsize=64)
@@ -131,17 +132,28 @@ def _joint_transforms(model: TreeModel, q, order, dtype):
 def _outward(rot_p, pos_p, vel_p, r_rel, p_rel, axis, rev, qd, m, ms, jl, eye):
     """Sweep 1 for one link: its pose, joint column ``s`` (6), velocity, velocity-product acceleration ``c``, rigid
     inertia about ``O_0`` in world axes ``[[J0, skew(h)], [skew(h)^T, m E]]`` and bias force ``v x* I v``."""
-    nb = qd.ndim
     rot = _mm1(rot_p, r_rel)
     pos = pos_p + _mv1(rot_p, p_rel)
-    aw = _mv1(rot, _tail(axis, nb))
-    s = jnp.concatenate([rev * aw, rev * _cross1(pos, aw) + (1.0 - rev) * aw])
+    s = _column(rot, pos, axis, rev)
     own = s * qd
     vel = vel_p + own
+    nb = qd.ndim
+    return (rot, pos, vel, s) + _link_terms(rot, pos, vel, own, m, _tail(ms, nb), _tail(jl, nb), eye)
+
+
+def _column(rot, pos, axis, rev):
+    """Joint column ``s`` (6, *B) in world axes about ``O_0`` from the link's pose (``axis``: (3,) or (3, *B))."""
+    aw = _mv1(rot, _tail(axis, rot.ndim - 2 - jnp.ndim(axis) + 1))
+    return jnp.concatenate([rev * aw, rev * _cross1(pos, aw) + (1.0 - rev) * aw])
+
+
+def _link_terms(rot, pos, vel, own, m, ms, jl, eye):
+    """A link's velocity-product acceleration ``c``, rigid inertia about ``O_0`` in world axes and bias force, from
+    its pose, velocity and own joint velocity ``s qd`` (every argument with the same trailing axes)."""
     w, v = vel[:3], vel[3:]
     c = jnp.concatenate([_cross1(w, own[:3]), _cross1(w, own[3:]) + _cross1(v, own[:3])])
-    hl = _mv1(rot, _tail(ms, nb))
-    jw = _mm1(_mm1(rot, _tail(jl, nb)), jnp.swapaxes(rot, 0, 1))
+    hl = _mv1(rot, ms)
+    jw = _mm1(_mm1(rot, jl), jnp.swapaxes(rot, 0, 1))
     pp = jnp.sum(pos * pos, 0)
     ph = jnp.sum(pos * hl, 0)
     j0 = (jw + (m * pp + 2.0 * ph) * eye - m * pos[:, None] * pos[None, :] - pos[:, None] * hl[None, :]
@@ -150,7 +162,7 @@ def _outward(rot_p, pos_p, vel_p, r_rel, p_rel, axis, rev, qd, m, ms, jl, eye):
     inertia = jnp.concatenate([jnp.concatenate([j0, hx], 1), jnp.concatenate([jnp.swapaxes(hx, 0, 1), m * eye], 1)])
     mom = jnp.sum(inertia * vel[None], 1)
     bias = jnp.concatenate([_cross1(w, mom[:3]) + _cross1(v, mom[3:]), _cross1(w, mom[3:])])
-    return rot, pos, vel, s, c, inertia, bias
+    return c, inertia, bias
 
 
 def _inward(ia, pa, s, c, tau, arm):
@@ -265,6 +277,78 @@ def _aba_loop(model: TreeModel, q, qd, tau):
     a0 = jnp.concatenate([jnp.zeros(3, dtype), -model.gravity.astype(dtype), jnp.zeros(1, dtype)])
     buf = jnp.broadcast_to(_tail(a0, nb), (n + 1, 7) + bshape)
     buf, _ = jax.lax.scan(forward, buf, dict(c=c, U=u_vec, dinv=dinv, u=u, s=s, parent=parent, at=at))
+    inv = np.empty(n, dtype=np.int32)
+    inv[order] = np.arange(n, dtype=np.int32)
+    return buf[:n, 6][inv]
+
+
+def aba_one_state(model: TreeModel, q: Array, qd: Array, tau: Array) -> Array:
+    """Joint accelerations of one state ``(n,)`` by the sweeps of :func:`aba` for trees of any size (compile time flat
+    in N), laid out for one state: only the recursions loop over links, each carrying a few numbers per link (poses,
+    velocities, articulated inertias, accelerations), and everything a link computes from its own pose and velocity
+    (joint column, rigid inertia, bias force, velocity-product term) is one vectorised pass over all links. XLA:CPU
+    compiles a while loop that touches under 1 kB per step into one kernel instead of dispatching each of its
+    operations per step; the pose, velocity and acceleration loops qualify."""
+    with jax.numpy_rank_promotion("allow"):  # link terms (n,) meet (3, n) by trailing-axis broadcasting
+        return _aba_one_state(model, q, qd, tau)
+
+
+def _aba_one_state(model: TreeModel, q, qd, tau):
+    n, dtype = model.n_joints, jnp.result_type(q, qd, tau, model.inertia)
+    q, qd, tau = (jnp.asarray(x, dtype) for x in (q, qd, tau))
+    order, parent_pos = _order(model.parents)
+    r_rel, p_rel = _joint_transforms(model, q[order], order, dtype)  # (n, 3, 3), (n, 3)
+    m, ms, jl = unpack_params(model.inertia[order])
+    parent, at = jnp.asarray(parent_pos), jnp.arange(n, dtype=jnp.int32)
+    qd_o = qd[order]
+
+    def row(buf, i):
+        return jax.lax.dynamic_index_in_dim(buf, i, 0, keepdims=False)
+
+    def put(buf, i, x):
+        return jax.lax.dynamic_update_index_in_dim(buf, x, i, 0)
+
+    def pose(buf, x):  # rows: rot 9, pos 3 (last row: the world)
+        k, i, rr, pr = x
+        r = row(buf, k)
+        rot_p, pos_p = r[:9].reshape(3, 3), r[9:]
+        return put(buf, i, jnp.concatenate([_mm1(rot_p, rr).reshape(9), pos_p + _mv1(rot_p, pr)])), None
+
+    world = jnp.concatenate([jnp.eye(3, dtype=dtype).reshape(9), jnp.zeros(3, dtype)])
+    buf, _ = jax.lax.scan(pose, jnp.zeros((n + 1, 12), dtype).at[n].set(world), (parent, at, r_rel, p_rel))
+    # Links on the trailing axis for the vectorised passes: rot (3, 3, n), pos (3, n).
+    rot, pos = jnp.moveaxis(buf[:n, :9].reshape(n, 3, 3), 0, -1), buf[:n, 9:].T
+    s = _column(rot, pos, jnp.asarray(model.axes_array[order], dtype).T, jnp.asarray(model.is_revolute[order], dtype))
+    own = s * qd_o
+
+    def velocity(buf, x):
+        k, i, o = x
+        return put(buf, i, row(buf, k) + o), None
+
+    vel = jax.lax.scan(velocity, jnp.zeros((n + 1, 6), dtype), (parent, at, own.T))[0][:n].T
+    eye = jnp.eye(3, dtype=dtype)[:, :, None] + jnp.zeros(n, dtype)
+    c, inertia, bias = _link_terms(rot, pos, vel, own, m, ms.T, jnp.moveaxis(jl, 0, -1), eye)
+    arm = (jnp.zeros(n, dtype) if model.rotor_inertia is None else model.rotor_inertia[order]).astype(dtype)
+    kids = _children(model.parents)
+
+    def inward(buf, x):  # rows: what the link passes to its parent (36 + 6) | U 6, 1/D, u
+        ia, pa, s_i, c_i, tau_i, arm_i, i, kd = x
+        got = sum(row(buf, kd[j])[:42] for j in range(kids.shape[1]))
+        u_vec, dinv, u, ia, pa = _inward(ia + got[:36].reshape(6, 6), pa + got[36:], s_i, c_i, tau_i, arm_i)
+        return put(buf, i, jnp.concatenate([ia.reshape(36), pa, u_vec, dinv[None], u[None]])), None
+
+    buf, _ = jax.lax.scan(inward, jnp.zeros((n + 1, 50), dtype),
+                          (jnp.moveaxis(inertia, -1, 0), bias.T, s.T, c.T, tau[order], arm, at, jnp.asarray(kids)),
+                          reverse=True)
+
+    def forward(buf, x):  # rows: spatial acceleration 6, qdd
+        k, i, c_i, u_vec, dinv, u, s_i = x
+        a, qdd = _acceleration(row(buf, k)[:6], c_i, u_vec, dinv, u, s_i)
+        return put(buf, i, jnp.concatenate([a, qdd[None]])), None
+
+    a0 = jnp.concatenate([jnp.zeros(3, dtype), -model.gravity.astype(dtype), jnp.zeros(1, dtype)])
+    buf, _ = jax.lax.scan(forward, jnp.broadcast_to(a0, (n + 1, 7)),
+                          (parent, at, c.T, buf[:n, 42:48], buf[:n, 48], buf[:n, 49], s.T))
     inv = np.empty(n, dtype=np.int32)
     inv[order] = np.arange(n, dtype=np.int32)
     return buf[:n, 6][inv]

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .aba import UNROLL_LINKS, aba, supports_aba
+from .aba import UNROLL_LINKS, aba, aba_one_state, supports_aba
 from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
@@ -250,7 +250,7 @@ def _forward_dynamics(model: TreeModel, q, qd, tau, smooth_friction):
     trees, O(N) in time and in compile time)."""
     rhs = _generalised_forces(model, q, qd, tau, smooth_friction)
     if supports_aba(model) and model.n_joints > UNROLL_LINKS:
-        return aba(model, q[:, None], qd[:, None], rhs[:, None])[:, 0]
+        return aba_one_state(model, q, qd, rhs)
     b = _bodies(model, q)
     return spd_solve(_mass_matrix(model, b), rhs - _rnea(model, b, qd, None, model.gravity))
 

@@ -165,3 +165,23 @@ def test_loop_sweeps_equal_written_out_sweeps_and_differentiate(small_tree, tiny
         assert max_rel(loop(small_tree, q, qd, tau), written(small_tree, q, qd, tau)) <= SAME_RTOL
         x = (jnp.asarray(rng.normal(size=(tiny_tree.nq, 2))) for _ in range(3))
         check_grads(lambda *a: loop(tiny_tree, *a), tuple(x), order=1, modes=("fwd", "rev"))
+
+
+def test_one_state_loop_sweeps_equal_written_out_sweeps_and_differentiate(small_tree, tiny_tree):
+    """The one-state layout of the sweeps (trees beyond UNROLL_LINKS: small loops for the recursions, link terms
+    vectorised over links) on small trees, against the written-out sweeps state by state (values) and against finite
+    differences (gradients w.r.t. the state and the inertial parameters, fwd and rev)."""
+    from particlesim.tree import aba as aba_module
+
+    rng = np.random.default_rng(13)
+    n = small_tree.nq
+    one = jax.jit(aba_module.aba_one_state)
+    written = jax.jit(lambda m, q, qd, t: aba_module._aba_unrolled(m, q[:, None], qd[:, None], t[:, None])[:, 0])
+    for _ in range(3):
+        q, qd, tau = (jnp.asarray(rng.normal(size=n)) for _ in range(3))
+        with jax.numpy_rank_promotion("allow"):
+            ref = written(small_tree, q, qd, tau)
+        assert max_rel(one(small_tree, q, qd, tau), ref) <= SAME_RTOL
+    x = tuple(jnp.asarray(rng.normal(size=tiny_tree.nq)) for _ in range(3))
+    check_grads(lambda q, qd, t, p: one(tiny_tree.with_params(inertia=p), q, qd, t), x + (tiny_tree.inertia,),
+                order=1, modes=("fwd", "rev"))
