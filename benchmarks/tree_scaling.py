@@ -3,7 +3,8 @@ and per batched state, ours beside Pinocchio's ABA and ``abaInParallel``.
 
 Chains: seeded random revolute chains (random axes, joint origins and inertias), written as URDF and loaded by both
 libraries. Ours: ``forward_dynamics`` jitted for one state (composite inertias and Cholesky up to
-``particlesim.tree.aba.UNROLL_LINKS`` links, articulated-body sweeps in a loop over links beyond), timed per call
+``particlesim.tree.aba.UNROLL_LINKS`` links unless the tree is deep, articulated-body sweeps laid out for one state
+beyond and for deep trees: chains of 16 links or more), timed per call
 from Python and per evaluation inside a compiled scan (no dispatch); and for a batch of states passed directly
 (articulated-body sweeps with the batch innermost). Pinocchio: ``pin.aba`` per call from Python, and its batched C++
 ``abaInParallel`` on 1 thread. Compile times are ``jit(...).lower(...).compile()``; run times least of repeats.
@@ -23,7 +24,7 @@ import numpy as np
 
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
-from particlesim.tree.aba import UNROLL_LINKS
+from particlesim.tree.aba import ONE_STATE_SWEEPS_DEPTH, UNROLL_LINKS, one_state_sweeps
 
 from ._common import RESULTS, environment, timed
 
@@ -74,7 +75,7 @@ def run_size(n: int) -> dict:
     rng = np.random.default_rng(1)
     qs, qds, taus = rng.uniform(-2, 2, (BATCH, n)), rng.normal(size=(BATCH, n)), rng.normal(size=(BATCH, n))
     jq, jqd, jtau = (jnp.asarray(x) for x in (qs, qds, taus))
-    row = {"n": n, "one_state_path": "composite inertias + Cholesky" if n <= UNROLL_LINKS else "articulated-body loop"}
+    row = {"n": n, "one_state_path": "articulated-body sweeps" if one_state_sweeps(model) else "composite inertias + Cholesky"}
 
     q1, qd1, tau1 = jq[0], jqd[0], jtau[0]  # sliced once (an eager slice per call would cost more than the call)
     c, single = timed(lambda: jax.jit(forward_dynamics).lower(model, q1, qd1, tau1).compile())
@@ -176,7 +177,8 @@ def markdown(results: dict) -> str:
     s = results["slopes"]
     lines = [f"### Serial chains: forward dynamics against size (N = {SIZES[0]}..{SIZES[-1]})", "",
              f"{env['cpu']}, {env['cpu_count']} cores, {env['date']}; took {results['wall_s'] / 60:.1f} min. "
-             f"Ours one state: composite inertias + Cholesky up to {UNROLL_LINKS} links, articulated-body loop beyond; "
+             f"Ours one state: articulated-body sweeps beyond {UNROLL_LINKS} links and for trees of mean link depth above "
+             f"{ONE_STATE_SWEEPS_DEPTH:g} (chains of 16 links or more), composite inertias + Cholesky otherwise; "
              f"batch of {results['batch']} passed directly (articulated-body sweeps, batch innermost, one thread).", "",
              "| N | compile one / scan / batch | one call | in scan | batch, per state | Pinocchio aba | "
              "abaInParallel 1 thread | error vs Pinocchio |",

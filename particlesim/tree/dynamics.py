@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .aba import UNROLL_LINKS, aba, aba_one_state, supports_aba
+from .aba import aba, aba_one_state, one_state_sweeps, supports_aba
 from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
@@ -246,10 +246,10 @@ def _generalised_forces(model: TreeModel, q, qd, tau, smooth_friction):
 
 
 def _forward_dynamics(model: TreeModel, q, qd, tau, smooth_friction):
-    """One state: composite inertias and a Cholesky solve (small trees), or the articulated-body sweeps (large
-    trees, O(N) in time and in compile time)."""
+    """One state: composite inertias and a Cholesky solve (small, shallow trees), or the articulated-body sweeps
+    (large or deep trees, O(N) in time and in compile time)."""
     rhs = _generalised_forces(model, q, qd, tau, smooth_friction)
-    if supports_aba(model) and model.n_joints > UNROLL_LINKS:
+    if one_state_sweeps(model):
         return aba_one_state(model, q, qd, rhs)
     b = _bodies(model, q)
     return spd_solve(_mass_matrix(model, b), rhs - _rnea(model, b, qd, None, model.gravity))
@@ -268,7 +268,8 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     """``qdd = A^-1 (tau - C qd - Q - Gamma_f)``: one state, or a batch along leading axes.
 
     One state ``(nq,)``: a Cholesky factorisation of ``A`` (composite inertias) for trees of up to
-    :data:`~.aba.UNROLL_LINKS` links, the articulated-body algorithm (:mod:`.aba`, O(N)) beyond. A batch
+    :data:`~.aba.UNROLL_LINKS` links, the articulated-body algorithm (:func:`~.aba.aba_one_state`, O(N)) beyond and
+    for deep trees (mean link depth above :data:`~.aba.ONE_STATE_SWEEPS_DEPTH`, such as long chains). A batch
     ``(..., nq)`` (leading axes broadcast between ``q``, ``qd`` and ``tau``): the articulated-body sweeps with the batch
     as the innermost axis of every operation, several times faster per state than ``jax.vmap`` of the one-state
     call. Pass batches directly rather than vmapping; models with mimic, free or ball joints evaluate a batch state

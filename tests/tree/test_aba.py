@@ -185,3 +185,34 @@ def test_one_state_loop_sweeps_equal_written_out_sweeps_and_differentiate(small_
     x = tuple(jnp.asarray(rng.normal(size=tiny_tree.nq)) for _ in range(3))
     check_grads(lambda q, qd, t, p: one(tiny_tree.with_params(inertia=p), q, qd, t), x + (tiny_tree.inertia,),
                 order=1, modes=("fwd", "rev"))
+
+
+def test_deep_small_tree_single_state_takes_the_sweeps_and_matches_pinocchio():
+    """A 20-link serial chain (mean link depth 10.5, below UNROLL_LINKS) takes the one-state sweeps; against
+    Pinocchio's ABA on random states, and equal to the composite-inertia solve it replaces."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+    from benchmarks.tree_scaling import chain_urdf
+    from particlesim.tree import aba as aba_module
+    from particlesim.tree.dynamics import _bodies, _mass_matrix, _rnea
+
+    urdf = chain_urdf(20, seed=3)
+    gravity = (0.0, 0.0, -9.81)
+    model = load_urdf(urdf, gravity=gravity)
+    assert model.nq <= UNROLL_LINKS and aba_module.one_state_sweeps(model)
+    oracle = PinocchioOracle(urdf, model.joint_names, gravity)
+    rng = np.random.default_rng(14)
+    fd = jax.jit(forward_dynamics)
+
+    def composite(m, q, qd, tau):
+        b = _bodies(m, q)
+        return jnp.linalg.solve(_mass_matrix(m, b), tau - _rnea(m, b, qd, None, m.gravity))
+
+    composite = jax.jit(composite)
+    for _ in range(3):
+        q, qd, tau = rng.uniform(-2.0, 2.0, model.nq), rng.normal(size=model.nq), rng.normal(size=model.nq)
+        ours = np.asarray(fd(model, q, qd, tau))
+        assert max_rel(ours, _pin_aba(oracle, q[None], qd[None], tau[None])[0]) <= PIN_RTOL
+        assert max_rel(ours, composite(model, q, qd, tau)) <= PIN_RTOL
