@@ -16,8 +16,8 @@ over the batch; under ``jax.vmap`` of a one-state function the batch would come 
 loop over axes of length 3 or 6. Trees up to :data:`UNROLL_LINKS` links have their sweeps written out link by link
 (the fastest program; compile time grows with the tree); larger trees run each sweep as one ``lax.scan`` over the
 links with one stacked buffer (sweeps 1 and 3 read the parent's row, sweep 2 pulls the children's rows; one row
-written per step): compile time flat in N, cost per state O(N). One state of a large tree takes
-:func:`aba_one_state`: the same sweeps with only the recursions in loops and the link terms vectorised over links.
+written per step): compile time flat in N, cost per state O(N). One state of a large or deep tree
+takes :func:`aba_one_state`: the same sweeps with only the recursions in loops and the link terms vectorised over links.
 
 Covers trees of revolute and prismatic joints (rotor inertia, viscous and Coulomb friction, joint springs and soft
 limits as generalised forces); models with mimic, free or ball joints use the composite-inertia path.
@@ -158,16 +158,17 @@ def _outward(rot_p, pos_p, vel_p, r_rel, p_rel, axis, rev, qd, m, ms, jl, eye):
     inertia about ``O_0`` in world axes ``[[J0, skew(h)], [skew(h)^T, m E]]`` and bias force ``v x* I v``."""
     rot = _mm1(rot_p, r_rel)
     pos = pos_p + _mv1(rot_p, p_rel)
-    s = _column(rot, pos, axis, rev)
+    nb = qd.ndim
+    s = _column(rot, pos, _tail(axis, nb), rev)
     own = s * qd
     vel = vel_p + own
-    nb = qd.ndim
     return (rot, pos, vel, s) + _link_terms(rot, pos, vel, own, m, _tail(ms, nb), _tail(jl, nb), eye)
 
 
 def _column(rot, pos, axis, rev):
-    """Joint column ``s`` (6, *B) in world axes about ``O_0`` from the link's pose (``axis``: (3,) or (3, *B))."""
-    aw = _mv1(rot, _tail(axis, rot.ndim - 2 - jnp.ndim(axis) + 1))
+    """Joint column ``s`` (6, *B) in world axes about ``O_0`` from the link's pose (``axis`` in link axes, (3, *B) or
+    broadcasting to it)."""
+    aw = _mv1(rot, axis)
     return jnp.concatenate([rev * aw, rev * _cross1(pos, aw) + (1.0 - rev) * aw])
 
 
