@@ -206,7 +206,7 @@ def run() -> dict:
     t = median_time(lambda: batched(model, jq, jqd, jtau), number=5, block=jax.block_until_ready)
     rows.append(_row(f"ours forward_dynamics (vmap {BATCH}, one-state path vectorised)", t / BATCH, "per state", c2))
     # The batch passed directly to the public function (its own compiled entry, with the XLA options of
-    # particlesim._jit.CPU_OPTIONS): articulated-body sweeps with the batch innermost (particlesim.tree.aba).
+    # particlesim._xla.BATCH_OPTIONS): articulated-body sweeps with the batch innermost (particlesim.tree.aba).
     swept = forward_dynamics
     t0 = time.perf_counter()
     jax.block_until_ready(swept(model, jq, jqd, jtau))

@@ -11,6 +11,7 @@ jax.config.update("jax_enable_x64", True)
 from . import spatial  # noqa: E402
 from .errors import DataError, InertiaError, ModelError, NegativeMassWarning, ParseError, PlacementError  # noqa: E402
 from .inertia import RigidInertia, check_inertia  # noqa: E402
+from ._xla import compiler_options  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -24,4 +25,5 @@ __all__ = [
     "ParseError",
     "DataError",
     "NegativeMassWarning",
+    "compiler_options",
 ]

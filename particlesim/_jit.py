@@ -25,30 +25,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._ode import TRACES, cached
+from ._xla import cpu_options, top_level
 
-__all__ = ["compiled", "cpu_options"]
-
-#: XLA options for our own compiled entries on the CPU (per executable: nothing global is changed). Reductions go to
-#: the same YNNPACK kernels XLA already uses for dots and elementwise loops: the articulated-body sweeps of a batch,
-#: whose reductions run over the trailing batch axis, cost 5-20 % less per state in interleaved runs (Krang, 1024
-#: states); compile time and one-state programs are unchanged within noise, so only the batch entry uses them.
-#: Results agree to round-off (the tests hold at their tolerances).
-CPU_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type":
-               "LIBRARY_FUSION_TYPE_DOT,LIBRARY_FUSION_TYPE_ELTWISE,LIBRARY_FUSION_TYPE_REDUCE"}
-
-
-@functools.lru_cache(maxsize=1)
-def cpu_options() -> dict:
-    """:data:`CPU_OPTIONS` when the default backend is the CPU and this XLA knows them (checked once by compiling a
-    trivial program with them), else ``{}``."""
-    if jax.default_backend() != "cpu":
-        return {}
-    try:
-        jax.jit(lambda x: x + 1.0, compiler_options=CPU_OPTIONS).lower(1.0).compile()
-    except Exception:  # an XLA without these options: compile with its defaults
-        return {}
-    return dict(CPU_OPTIONS)
-
+__all__ = ["compiled"]
 
 def _as_array(x):
     if isinstance(x, (jax.Array, jax.core.Tracer)) or x is None:
@@ -65,8 +44,9 @@ def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = 
     arrays)`` runs before dispatch with the converted arrays by parameter name. ``arrays_only``: every leaf of the
     model is an array (a :class:`~particlesim.tree.TreeModel`), so the entry is a plain ``jax.jit`` (its dispatch
     is a few microseconds cheaper than sorting leaves into arrays and static values, which a mechanism's force-law
-    callables need); with ``options`` it is compiled with :func:`cpu_options`. The undecorated function stays
-    available as ``.raw`` for callers already inside a trace."""
+    callables need). Called at top level, every entry is compiled with
+    :func:`particlesim._xla.cpu_options` (with the batch options for ``options``); inside a caller's trace it is
+    inlined. The undecorated function stays available as ``.raw`` for callers already inside a trace."""
 
     def wrap(fn):
         sig = inspect.signature(fn)
@@ -84,10 +64,10 @@ def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = 
             def entry(*args, **kwargs):
                 # Compiler options are for a top-level program only: inside a user's trace the entry is inlined.
                 nonlocal top
-                if not options or any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((args, kwargs))):
+                if not top_level():
                     return nested(*args, **kwargs)
                 if top is None:  # built on first use: the options are probed once the backend is up
-                    top = jax.jit(counted, static_argnames=tuple(static), compiler_options=cpu_options())
+                    top = jax.jit(counted, static_argnames=tuple(static), compiler_options=cpu_options(options))
                 return top(*args, **kwargs)
         else:
             entry = cached(name)(fn)

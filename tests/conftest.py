@@ -1,8 +1,15 @@
 """Test configuration: float64, strict promotion, the reference-data folder. Helpers shared across folders live
 beside this file (``tree_helpers.py``), which pytest puts on the import path."""
 
-import jax
-import pytest
+import os
+
+# The tests' own jax.jit wrappers (losses, check_grads, twins) compile with the options particlesim's entries use
+# (particlesim._xla.COMPILE_OPTIONS: about half the compile time, same run time); set before JAX's backend starts.
+# test_compile_once checks that they agree with XLA's defaults to round-off.
+os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")

@@ -107,6 +107,39 @@ def test_tree_rollout_compiles_once(two_link):
     assert not np.allclose(a.q[-1], b.q[-1])
 
 
+#: Our entries' compiler options choose how XLA emits the code, not what it computes. One state: float64 round-off,
+#: relative to the result's scale. A rollout: the same up to its adaptive steps, which round-off may accept or reject
+#: differently, so to the solver's tolerance (rtol = atol = 1e-10 below; measured 1.1e-11 on the two-link tree).
+OPTIONS_RTOL = 1e-13
+OPTIONS_ROLLOUT_TOL = 1e-9
+
+
+def test_entries_compile_with_their_options_and_agree_with_xla_defaults(pendulum, two_link):
+    """A top-level call of an entry is compiled with ``particlesim.compiler_options()`` (this XLA knows them: the probe
+    kept them), and gives what the same function gives inlined into a user's jit compiled with XLA's default
+    emitters; the returned dict is a copy."""
+    import particlesim
+    from particlesim._xla import COMPILE_OPTIONS
+    from particlesim.mechanism import accelerations
+    from particlesim.tree import forward_dynamics
+
+    options = particlesim.compiler_options()
+    assert options == COMPILE_OPTIONS
+    options.clear()
+    assert particlesim.compiler_options() == COMPILE_OPTIONS
+    defaults = {key: not value for key, value in COMPILE_OPTIONS.items()}  # the fusion emitters, XLA's default
+    mech, x0 = pendulum
+    xd0 = jnp.zeros_like(x0).at[4].set(0.5)
+    q0, qd0, tau = jnp.array([0.3, -0.2]), jnp.array([0.5, 1.0]), jnp.array([0.1, -0.4])
+    kw = dict(solver="dopri8", rtol=1e-10, atol=1e-10, saveat_ts=np.linspace(0.0, 0.5, 6))
+    for run, tol in ((lambda: forward_dynamics(two_link, q0, qd0, tau), OPTIONS_RTOL),
+                     (lambda: accelerations(mech, 0.0, x0, xd0), OPTIONS_RTOL),
+                     (lambda: simulate_mechanism(mech, x0, xd0, 0.0, 0.5, **kw).q, OPTIONS_ROLLOUT_TOL),
+                     (lambda: simulate(_tree_dynamics, two_link, q0, qd0, 0.0, 0.5, **kw).q, OPTIONS_ROLLOUT_TOL)):
+        ours, default = run(), jax.jit(run, compiler_options=defaults)()
+        np.testing.assert_allclose(ours, default, rtol=0, atol=tol * float(jnp.max(jnp.abs(default))))
+
+
 def test_one_state_tree_functions_are_compiled_entries(tmp_path):
     """An eager call of a one-state tree function is one compiled entry per model structure and static setting: the
     first call traces it once, new parameter values and states reuse it (trace counter), its values equal the same

@@ -299,7 +299,7 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
 def _batched(model: TreeModel, q, qd, tau, smooth_friction):
     """A batch, compiled once per model structure and batch shape (hundreds of small operations would otherwise
     be dispatched one by one when called outside ``jit``), with XLA's reductions on its YNNPACK kernels
-    (:data:`particlesim._jit.CPU_OPTIONS`: the sweeps' reductions run over the trailing batch axis)."""
+    (:data:`particlesim._xla.BATCH_OPTIONS`: the sweeps' reductions run over the trailing batch axis)."""
     if not supports_aba(model):
         per_state = functools.partial(_forward_dynamics, model, smooth_friction=smooth_friction)
         return jnp.vectorize(per_state, signature="(a),(b),(b)->(b)")(q, qd, tau)

@@ -19,7 +19,7 @@ from particlesim.mechanism.builder import RedundantConstraintsWarning
 ACC_RTOL = 1e-10
 #: Multipliers: the doubled closure's two shares summed against the single closure's [N].
 LAM_TOL = 1e-9
-#: Positions after 3 s of the two, [m] (both integrated at rtol 1e-10).
+#: Positions of the two along 1.5 s and 3 s, [m] (both integrated at rtol 1e-10; measured 1.9e-10 and 1.1e-10).
 ROLLOUT_TOL = 1e-8
 
 
@@ -68,13 +68,18 @@ def test_doubled_closure_moves_like_the_single_one(pair):
 
 
 def test_doubled_closure_rollout(pair):
+    """The parallelogram four-bar's crank falls through its flat position (t ≈ 1.78 s), where the loop's rows lose
+    rank: the single closure's exact solve is singular there (whether a rollout steps across it depends on round-off),
+    the doubled closure's least-squares solve is not. So the doubled closure is compared with the single exact
+    closure up to 1.5 s, and over 3 s through the flat position with the single closure solved by least squares."""
     mech, doubled, _, _, x, xd = pair
-    ts = jnp.linspace(0.0, 3.0, 7)
-    kw = dict(solver="dopri8", rtol=1e-10, atol=1e-12, saveat_ts=ts)
-    s1 = simulate_mechanism(mech, x, xd, 0.0, 3.0, **kw)
-    s2 = simulate_mechanism(doubled, x, xd, 0.0, 3.0, **kw)
-    assert float(jnp.max(jnp.abs(s1.q - s2.q))) <= ROLLOUT_TOL
-    assert float(jnp.max(jnp.abs(jax.vmap(lambda a, b: velocity_constraints(doubled, a, b))(s2.q, s2.qd)))) <= 1e-12
+    lsq = dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, least_squares=True))
+    for single, t1 in ((mech, 1.5), (lsq, 3.0)):
+        kw = dict(solver="dopri8", rtol=1e-10, atol=1e-12, saveat_ts=jnp.linspace(0.0, t1, 7))
+        s1 = simulate_mechanism(single, x, xd, 0.0, t1, **kw)
+        s2 = simulate_mechanism(doubled, x, xd, 0.0, t1, **kw)
+        assert float(jnp.max(jnp.abs(s1.q - s2.q))) <= ROLLOUT_TOL
+        assert float(jnp.max(jnp.abs(jax.vmap(lambda a, b: velocity_constraints(doubled, a, b))(s2.q, s2.qd)))) <= 1e-12
 
 
 def _rel_gap(a, b) -> float:

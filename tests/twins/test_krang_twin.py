@@ -164,6 +164,8 @@ def test_damping_and_armature_twin_rotor_inertia_and_viscous_friction(shared_dat
 # ---- rollouts ---------------------------------------------------------------------------------------------------
 
 ROLL_RTOL, ROLL_ATOL = 1e-12, 1e-12  # Dopri8; its own global error on this problem is ~1e-10 (measured below)
+#: Our rollout's own error as a reference for the RK4 twin after 1 s, q [rad] and q̇ [rad/s] (round-off floor 8e-10).
+OURS_FLOOR = 1e-9
 
 
 @pytest.fixture(scope="session")
@@ -200,7 +202,9 @@ def test_krang_falls_like_mujoco_rk4_within_integrator_error(shared_data, krang,
     RK4 is 4th order: e(h) ≈ K h⁴, so e(1e-4) ≈ 16/15 · |x(1e-4) − x(5e-5)| (Richardson). Measured: step-halving
     difference 1.0e-8 rad (q) / 3.2e-7 rad/s (q̇); ours − RK4(1e-4) is 1.07e-8 / 3.4e-7, i.e. the estimate itself;
     ours − RK4(5e-5) is 6.8e-10 / 2.1e-8, 1/16 of it: RK4 converges to our solution at its own order.
-    Tolerance: twice the Richardson estimate plus 1e-9 for our Dopri8 error.
+    Tolerance: twice the Richardson estimate plus 1e-9 for our Dopri8 error (``OURS_FLOOR``), in both checks: round-off
+    alone moves our q̇ after 1 s by up to 8e-10 rad/s (two solves at rtol 1e-13 that differ only in XLA's code
+    emitters), the same order as RK4(5e-5)'s own q̇ error (~2e-9).
     """
     model, _, jm = krang
     q0, qd0 = _krang_start(model.nq)
@@ -211,9 +215,9 @@ def test_krang_falls_like_mujoco_rk4_within_integrator_error(shared_data, krang,
     n = model.nq
     for part in (slice(0, n), slice(n, 2 * n)):  # positions, velocities
         rk4_err = 16.0 / 15.0 * np.max(np.abs(coarse[part] - fine[part]))
-        assert np.max(np.abs(ours[part] - coarse[part])) <= 2.0 * rk4_err + 1e-9
-        # Convergence at 4th order towards ours: the error must shrink by ~16 when h halves (accept ≥ 8).
-        assert np.max(np.abs(ours[part] - fine[part])) <= np.max(np.abs(ours[part] - coarse[part])) / 8.0
+        assert np.max(np.abs(ours[part] - coarse[part])) <= 2.0 * rk4_err + OURS_FLOOR
+        # Convergence at 4th order towards ours: the error must shrink by ~16 when h halves (accept ≥ 8), up to our own.
+        assert np.max(np.abs(ours[part] - fine[part])) <= np.max(np.abs(ours[part] - coarse[part])) / 8.0 + OURS_FLOOR
 
 
 @pytest.mark.slow
