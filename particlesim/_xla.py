@@ -10,7 +10,7 @@ import functools
 
 import jax
 
-__all__ = ["COMPILE_OPTIONS", "BATCH_OPTIONS", "cpu_options", "compiler_options", "top_level"]
+__all__ = ["COMPILE_OPTIONS", "BATCH_OPTIONS", "cpu_options", "compiler_options", "jit", "top_level"]
 
 #: XLA options for every compiled entry on the CPU (per executable: nothing global is changed). Elementwise and loop
 #: code is emitted by XLA's direct LLVM emitters rather than its MLIR fusion emitters, which compile about twice as
@@ -66,3 +66,26 @@ try:
 except ImportError:  # a JAX without it: never claim top level, so entries compile with XLA's defaults
     def _trace_state_clean() -> bool:
         return False
+
+
+class jit:
+    """``jax.jit(fn, **kwargs)`` compiled with :func:`cpu_options` when called (or lowered) at top level; inside a
+    trace it is a plain ``jax.jit``, inlined into the caller's program. The options are probed on first top-level
+    use, once the backend is up."""
+
+    def __init__(self, fn, **kwargs):
+        functools.update_wrapper(self, fn)
+        self._fn, self._kwargs = fn, kwargs
+        self._nested = jax.jit(fn, **kwargs)
+        self._top = None
+
+    def _top_level(self):
+        if self._top is None:
+            self._top = jax.jit(self._fn, compiler_options=cpu_options(), **self._kwargs)
+        return self._top
+
+    def __call__(self, *args, **kwargs):
+        return (self._top_level() if top_level() else self._nested)(*args, **kwargs)
+
+    def lower(self, *args, **kwargs):
+        return (self._top_level() if top_level() else self._nested).lower(*args, **kwargs)

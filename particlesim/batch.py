@@ -29,6 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, PartitionSpec as P
 
+from . import _xla
+
 __all__ = ["AXIS", "batch_mesh", "stack", "param_axes", "sharded_vmap"]
 
 #: Name of the batch axis of the device mesh.
@@ -133,7 +135,7 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
         raise ValueError(f"chunk must be a positive integer or None, got {chunk!r}")
     ndev = mesh.devices.size
 
-    @jax.jit
+    @_xla.jit
     def run(*args):
         leaves, treedef = jax.tree.flatten(args)
         axes = _leaf_axes(in_axes, args)

@@ -25,7 +25,7 @@ import lineax as lx
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
-from .. import _ode
+from .. import _ode, _xla
 from ..tree import TreeModel, inverse_dynamics
 from ._params import inertia_from_log_cholesky, inv_softplus, log_cholesky_from_inertia, softplus
 from ._regressor import model_with_params
@@ -123,7 +123,7 @@ def check_start(theta0) -> None:
                          "(theta_from_params of a zero gives -inf; start actuator parameters at e.g. 1.0)")
 
 
-@functools.partial(jax.jit, static_argnames=("rtol", "atol", "max_steps", "has_prior"))
+@functools.partial(_xla.jit, static_argnames=("rtol", "atol", "max_steps", "has_prior"))
 def _lm_starts(theta0, r, y, ref, weight, *, rtol, atol, max_steps, has_prior):
     """Levenberg–Marquardt from every row of ``theta0``, vmapped; compiled once per shapes and settings (new data
     and starts reuse it)."""

@@ -35,6 +35,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import ArrayLike, Float
 
+from .. import _xla
 from ._fit import CompressedLSQ, check_start, compress, params_from_theta
 from ._regressor import column_scale, identifiable_basis
 
@@ -167,7 +168,7 @@ def bootstrap_base(w: Float[ArrayLike, "N n p"], tau: Float[ArrayLike, "N n"], t
     def residual(theta, target):
         return e_mat @ params_from_theta(theta) - target
 
-    @jax.jit
+    @_xla.jit
     @jax.vmap
     def run(target):
         sol = optx.least_squares(residual, solver, jnp.asarray(theta0, dtype=float), args=target,

@@ -23,6 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import _xla
+
 __all__ = ["TraceModel", "TraceFit", "trace_model", "fit_traces"]
 
 _GROUPS = {"body": "body_names", "spring": "spring_names", "tyre": "tyre_names", "rotational": "rotational_names"}
@@ -117,8 +119,8 @@ def trace_model(mech, q0, ts, params: Mapping[str, tuple], observe: Callable, *,
         return r, r
 
     shape = (len(runs), ts.size) + jax.eval_shape(lambda q: jnp.asarray(observe(mech, q)), q0).shape
-    outputs = jax.jit(jax.vmap(all_runs))
-    residual_jacobian = jax.jit(jax.vmap(lambda lp, y: jax.jacfwd(residual, has_aux=True)(lp, y)[::-1],
+    outputs = _xla.jit(jax.vmap(all_runs))
+    residual_jacobian = _xla.jit(jax.vmap(lambda lp, y: jax.jacfwd(residual, has_aux=True)(lp, y)[::-1],
                                          in_axes=(0, None)))
     return TraceModel(names, ts, len(runs), tuple(shape), outputs, residual_jacobian)
 
