@@ -30,6 +30,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from particlesim import compiler_options
+
 from ._common import RESULTS, environment, timed
 
 __all__ = ["Errors", "compile_ours", "headline", "headline_notes", "sweep_ours", "sweep_fixed", "sweep_public",
@@ -82,7 +84,7 @@ def compile_ours(make: Callable[[str], Callable], args: Sequence, solver: str, c
     if compiled is not None and solver in compiled:
         return compiled[solver]
     r, a = jnp.asarray(rtol), jnp.asarray(rtol * atol_ratio)
-    out = timed(lambda: jax.jit(make(solver)).lower(*args, r, a).compile())
+    out = timed(lambda: jax.jit(make(solver), compiler_options=compiler_options()).lower(*args, r, a).compile())
     if compiled is not None:
         compiled[solver] = out
     return out

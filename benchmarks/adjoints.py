@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from particlesim import compiler_options
 from particlesim.data import data_dir
 from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics
@@ -133,7 +134,7 @@ def _fd_directional(loss_fn, theta, d):
 def _scene(scene, n, loss_of_adjoint, adjoints, repeat=5):
     """Rows for one scene: compile and run times of the loss and of each adjoint's gradient, errors against FD."""
     theta = jnp.ones(n)
-    t_c, fwd = timed(lambda: jax.jit(lambda th: loss_of_adjoint(th, "checkpoint")).lower(theta).compile())
+    t_c, fwd = timed(lambda: jax.jit(lambda th: loss_of_adjoint(th, "checkpoint"), compiler_options=compiler_options()).lower(theta).compile())
     t_fwd = median_time(lambda: fwd(theta), number=1, repeat=repeat, block=jax.block_until_ready)
     rng = np.random.default_rng(7)
     dirs = rng.normal(size=(N_DIRECTIONS, n))
@@ -150,7 +151,7 @@ def _scene(scene, n, loss_of_adjoint, adjoints, repeat=5):
             gfun = jax.jacfwd(lambda th: loss_of_adjoint(th, "forward"))
         else:
             gfun = jax.grad(lambda th, a=ADJOINTS[name]: loss_of_adjoint(th, a))
-        t_cg, g = timed(lambda: jax.jit(gfun).lower(theta).compile())
+        t_cg, g = timed(lambda: jax.jit(gfun, compiler_options=compiler_options()).lower(theta).compile())
         value = np.asarray(g(theta))  # also the warm-up call
         # Forward mode on many parameters is slow (one tangent each): fewer repeats.
         reps = 1 if name == "forward" and n > 3 else repeat

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from particlesim import compiler_options
 from particlesim.data import data_dir
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
@@ -41,7 +42,7 @@ DT = 1e-4
 
 
 def _compile(fn, *args):
-    t, compiled = timed(lambda: jax.jit(fn).lower(*args).compile())
+    t, compiled = timed(lambda: jax.jit(fn, compiler_options=compiler_options()).lower(*args).compile())
     return compiled, t
 
 

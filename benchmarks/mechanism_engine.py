@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from particlesim import compiler_options
 from particlesim.batch import sharded_vmap
 from particlesim.twins import callbacks as mjcb
 from particlesim.mechanism import simulate_mechanism
@@ -117,9 +118,9 @@ def gradients() -> dict:
         return jnp.sum((z - z[0]) ** 2)
 
     theta = jnp.ones(9)
-    fwd = jax.jit(loss)
-    rev = jax.jit(jax.grad(loss))
-    jf = jax.jit(jax.jacfwd(lambda th: loss(th, "forward")))
+    fwd = jax.jit(loss, compiler_options=compiler_options())
+    rev = jax.jit(jax.grad(loss), compiler_options=compiler_options())
+    jf = jax.jit(jax.jacfwd(lambda th: loss(th, "forward")), compiler_options=compiler_options())
     out = {}
     for label, fn in (("rollout", fwd), ("reverse (checkpoint)", rev), ("forward (jacfwd)", jf)):
         comp, run = _first_and_cached(lambda: jax.block_until_ready(fn(theta)))
@@ -173,7 +174,7 @@ def _ours_batch_rows(thetas, ref, solvers=BATCH_SOLVERS, chunks=BATCH_CHUNKS) ->
     rows = []
     for solver, pid in solvers:
         for rtol in (1e-2, 1e-3, 1e-4, 1e-5):
-            f = jax.jit(jax.vmap(lambda th, r=rtol: member(th, r, solver, pid)))
+            f = jax.jit(jax.vmap(lambda th, r=rtol: member(th, r, solver, pid)), compiler_options=compiler_options())
             err = float(np.abs(np.asarray(f(jnp.asarray(thetas[:CHECKED]))) - ref).max())
             if err <= TARGET:
                 break
