@@ -25,9 +25,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._ode import TRACES, cached
-from ._xla import cpu_options, top_level
+from ._xla import TopJit
 
 __all__ = ["compiled"]
+
 
 def _as_array(x):
     if isinstance(x, (jax.Array, jax.core.Tracer)) or x is None:
@@ -36,7 +37,7 @@ def _as_array(x):
 
 
 def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = None, arrays_only: bool = False,
-             options: bool = False):
+             batch: bool = False):
     """Decorator: ``fn(model, *state, **settings)`` as one compiled entry (module docstring).
 
     Every parameter after the model, except those named in ``static`` (settings: strings, numbers, ``None``, part of
@@ -45,7 +46,7 @@ def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = 
     model is an array (a :class:`~particlesim.tree.TreeModel`), so the entry is a plain ``jax.jit`` (its dispatch
     is a few microseconds cheaper than sorting leaves into arrays and static values, which a mechanism's force-law
     callables need). Called at top level, every entry is compiled with
-    :func:`particlesim._xla.cpu_options` (with the batch options for ``options``); inside a caller's trace it is
+    :func:`particlesim._xla.cpu_options` (with the batch options for ``batch``); inside a caller's trace it is
     inlined. The undecorated function stays available as ``.raw`` for callers already inside a trace."""
 
     def wrap(fn):
@@ -58,17 +59,7 @@ def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = 
                 TRACES[name] += 1
                 return fn(*args, **kwargs)
 
-            nested = jax.jit(counted, static_argnames=tuple(static))
-            top = None
-
-            def entry(*args, **kwargs):
-                # Compiler options are for a top-level program only: inside a user's trace the entry is inlined.
-                nonlocal top
-                if not top_level():
-                    return nested(*args, **kwargs)
-                if top is None:  # built on first use: the options are probed once the backend is up
-                    top = jax.jit(counted, static_argnames=tuple(static), compiler_options=cpu_options(options))
-                return top(*args, **kwargs)
+            entry = TopJit(counted, static_argnames=tuple(static), batch=batch)
         else:
             entry = cached(name)(fn)
 
@@ -91,6 +82,7 @@ def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = 
             return entry(*args, **kwargs)
 
         call.raw = fn
+        call.jit = entry if arrays_only else entry.jit  # the TopJit (tests read its top_options)
         return call
 
     return wrap

@@ -28,7 +28,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .errors import ModelError
-from ._xla import cpu_options, top_level
+from ._xla import TopJit
 
 __all__ = ["SOLVERS", "IMPLICIT_SOLVERS", "ADJOINTS", "Solution", "Settings", "settings", "integrate", "cached",
            "TRACES", "check_finite", "leaf_groups", "check_state", "check_times", "runtime_checks", "as_time"]
@@ -484,22 +484,17 @@ def cached(name: str):
             return fn(*args, **kwargs)
 
         traced.__name__ = traced.__qualname__ = name
-        nested = jax.jit(traced, static_argnums=0)
-        top = None
+        compiled = TopJit(traced, static_argnums=0)
 
         def call(*args, **kwargs):
-            nonlocal top
             leaves, treedef = jax.tree.flatten((args, kwargs))
             arrays = [leaf for leaf in leaves if isinstance(leaf, (jax.Array, np.ndarray))]
             statics = tuple(_ARRAY if isinstance(leaf, (jax.Array, np.ndarray)) else leaf for leaf in leaves)
-            if not top_level():  # inside a caller's trace: inlined, compiled with the caller's options
-                return nested((treedef, statics), *arrays)
-            if top is None:  # built on first use: the options are probed once the backend is up
-                top = jax.jit(traced, static_argnums=0, compiler_options=cpu_options())
-            return top((treedef, statics), *arrays)
+            return compiled((treedef, statics), *arrays)
 
         call.__name__ = call.__qualname__ = name
         call.__wrapped__ = fn
+        call.jit = compiled
         return call
 
     return wrap

@@ -10,7 +10,13 @@ import functools
 
 import jax
 
-__all__ = ["COMPILE_OPTIONS", "BATCH_OPTIONS", "cpu_options", "compiler_options", "jit", "top_level"]
+try:
+    from jax._src.core import trace_state_clean as _trace_state_clean
+except ImportError:  # a JAX without it: never claim top level, so entries compile with XLA's defaults
+    def _trace_state_clean() -> bool:
+        return False
+
+__all__ = ["COMPILE_OPTIONS", "BATCH_OPTIONS", "cpu_options", "compiler_options", "top_level", "TopJit"]
 
 #: XLA options for every compiled entry on the CPU (per executable: nothing global is changed). Elementwise and loop
 #: code is emitted by XLA's direct LLVM emitters rather than its MLIR fusion emitters, which compile about twice as
@@ -25,14 +31,16 @@ COMPILE_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 BATCH_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type":
                  "LIBRARY_FUSION_TYPE_DOT,LIBRARY_FUSION_TYPE_ELTWISE,LIBRARY_FUSION_TYPE_REDUCE"}
 
-@functools.lru_cache(maxsize=2)
-def cpu_options(batch: bool = False) -> dict:
-    """The compiler options of our entries: :data:`COMPILE_OPTIONS`, with :data:`BATCH_OPTIONS` for ``batch``, each
-    group kept only when the default backend is the CPU and this XLA knows it (checked once by compiling a trivial
-    program with it), else ``{}``.
 
-    Pass them to your own top-level ``jax.jit`` around particlesim functions (a loss, an identification step) to
-    compile it as our entries are: ``jax.jit(loss, compiler_options=particlesim.compiler_options())``."""
+def cpu_options(batch: bool = False) -> dict:
+    """The compiler options of our top-level programs: :data:`COMPILE_OPTIONS`, with :data:`BATCH_OPTIONS` for
+    ``batch`` (the batched tree forward dynamics), each group kept only when the default backend is the CPU and this
+    XLA knows it (checked once by compiling a trivial program with it), else ``{}``. A copy."""
+    return dict(_cpu_options(bool(batch)))
+
+
+@functools.lru_cache(maxsize=None)
+def _cpu_options(batch: bool) -> dict:
     if jax.default_backend() != "cpu":
         return {}
     groups = (COMPILE_OPTIONS, BATCH_OPTIONS) if batch else (COMPILE_OPTIONS,)
@@ -47,11 +55,12 @@ def cpu_options(batch: bool = False) -> dict:
 
 
 def compiler_options() -> dict:
-    """XLA compiler options that particlesim's own entries (``simulate``, ``simulate_mechanism``, the tree and
-    mechanism functions) are compiled with; ``{}`` off the CPU. For a user's own top-level ``jax.jit``:
-    ``jax.jit(loss, compiler_options=particlesim.compiler_options())`` compiles about twice as fast on the CPU
-    with the same run time (:data:`COMPILE_OPTIONS`). A copy: changing it changes nothing here."""
-    return dict(cpu_options())
+    """XLA compiler options that particlesim's entries (``simulate``, ``simulate_mechanism``, the tree and mechanism
+    functions) are compiled with at top level; ``{}`` off the CPU (a batch of tree states adds
+    :data:`BATCH_OPTIONS`). For a user's own top-level ``jax.jit``:
+    ``jax.jit(loss, compiler_options=particlesim.compiler_options())`` compiles about twice as fast on the CPU with
+    the same run time (:data:`COMPILE_OPTIONS`). A copy: changing it changes nothing here."""
+    return cpu_options()
 
 
 def top_level() -> bool:
@@ -61,31 +70,37 @@ def top_level() -> bool:
     return _trace_state_clean()
 
 
-try:
-    from jax._src.core import trace_state_clean as _trace_state_clean
-except ImportError:  # a JAX without it: never claim top level, so entries compile with XLA's defaults
-    def _trace_state_clean() -> bool:
-        return False
+class TopJit:
+    """``jax.jit(fn, **kwargs)``, compiled with :func:`cpu_options` (``batch`` selects the batch options) when
+    called or lowered at top level; inside a trace it is the plain ``jax.jit``, inlined into the caller's program.
+    The top-level jit is built on first use, once the backend is up. Other attributes (``trace``, ``eval_shape``,
+    ``clear_cache``...) are the plain jit's."""
 
-
-class jit:
-    """``jax.jit(fn, **kwargs)`` compiled with :func:`cpu_options` when called (or lowered) at top level; inside a
-    trace it is a plain ``jax.jit``, inlined into the caller's program. The options are probed on first top-level
-    use, once the backend is up."""
-
-    def __init__(self, fn, **kwargs):
+    def __init__(self, fn, *, batch: bool = False, **kwargs):
         functools.update_wrapper(self, fn)
-        self._fn, self._kwargs = fn, kwargs
+        self._options = kwargs.pop("compiler_options", None) or {}  # a caller's own, on top of ours
+        self._fn, self._batch, self._kwargs = fn, batch, kwargs
         self._nested = jax.jit(fn, **kwargs)
         self._top = None
+        #: The compiler options of the top-level program, once built (``None`` before the first top-level use).
+        self.top_options = None
 
-    def _top_level(self):
+    def _pick(self):
+        if not top_level():
+            return self._nested
         if self._top is None:
-            self._top = jax.jit(self._fn, compiler_options=cpu_options(), **self._kwargs)
+            options = {**cpu_options(self._batch), **self._options}
+            self._top = jax.jit(self._fn, compiler_options=options or None, **self._kwargs)
+            self.top_options = options
         return self._top
 
     def __call__(self, *args, **kwargs):
-        return (self._top_level() if top_level() else self._nested)(*args, **kwargs)
+        return self._pick()(*args, **kwargs)
 
     def lower(self, *args, **kwargs):
-        return (self._top_level() if top_level() else self._nested).lower(*args, **kwargs)
+        return self._pick().lower(*args, **kwargs)
+
+    def __getattr__(self, name):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self._nested, name)

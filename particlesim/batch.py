@@ -135,7 +135,7 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
         raise ValueError(f"chunk must be a positive integer or None, got {chunk!r}")
     ndev = mesh.devices.size
 
-    @_xla.jit
+    @_xla.TopJit
     def run(*args):
         leaves, treedef = jax.tree.flatten(args)
         axes = _leaf_axes(in_axes, args)

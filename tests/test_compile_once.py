@@ -116,17 +116,37 @@ OPTIONS_ROLLOUT_TOL = 1e-9
 
 def test_entries_compile_with_their_options_and_agree_with_xla_defaults(pendulum, two_link):
     """A top-level call of an entry is compiled with ``particlesim.compiler_options()`` (this XLA knows them: the probe
-    kept them), and gives what the same function gives inlined into a user's jit compiled with XLA's default
-    emitters; the returned dict is a copy."""
+    kept them; the batch of tree states adds the batch options), a call inside a trace is inlined, and either gives
+    what the same function gives inlined into a user's jit compiled with XLA's default emitters; the returned dict is
+    a copy."""
     import particlesim
-    from particlesim._xla import COMPILE_OPTIONS
+    from particlesim._xla import BATCH_OPTIONS, COMPILE_OPTIONS, top_level
     from particlesim.mechanism import accelerations
+    from particlesim.mechanism import integrate as mechanism_integrate
+    from particlesim.tree import dynamics as tree_dynamics
     from particlesim.tree import forward_dynamics
 
+    if jax.default_backend() != "cpu":
+        pytest.skip("the options are XLA:CPU's")
     options = particlesim.compiler_options()
     assert options == COMPILE_OPTIONS
     options.clear()
     assert particlesim.compiler_options() == COMPILE_OPTIONS
+    # Top level is told apart from every kind of trace (JAX refuses compiler options on a nested jit).
+    assert top_level()
+    seen = []
+    probe = lambda x: (seen.append(top_level()), x)[1]  # noqa: E731
+    jax.jit(probe)(1.0), jax.vmap(probe)(jnp.ones(2)), jax.grad(probe)(1.0), jax.checkpoint(probe)(1.0)
+    jax.lax.scan(lambda c, x: (probe(c), None), 0.0, jnp.ones(2))
+    assert seen == [False] * 5
+    # The entries used here compile their top-level programs with the options.
+    mech0, x00 = pendulum
+    simulate_mechanism(mech0, x00, jnp.zeros_like(x00), 0.0, 0.01)
+    forward_dynamics(two_link, jnp.zeros((3, 2)), jnp.zeros((3, 2)), jnp.zeros((3, 2)))  # a batch of three states
+    forward_dynamics(two_link, jnp.zeros(2), jnp.zeros(2), jnp.zeros(2))
+    assert mechanism_integrate._simulate.jit.top_options == COMPILE_OPTIONS
+    assert tree_dynamics._one_state.jit.top_options == COMPILE_OPTIONS
+    assert tree_dynamics._batched.jit.top_options == {**COMPILE_OPTIONS, **BATCH_OPTIONS}
     defaults = {key: not value for key, value in COMPILE_OPTIONS.items()}  # the fusion emitters, XLA's default
     mech, x0 = pendulum
     xd0 = jnp.zeros_like(x0).at[4].set(0.5)

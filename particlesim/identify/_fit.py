@@ -123,7 +123,7 @@ def check_start(theta0) -> None:
                          "(theta_from_params of a zero gives -inf; start actuator parameters at e.g. 1.0)")
 
 
-@functools.partial(_xla.jit, static_argnames=("rtol", "atol", "max_steps", "has_prior"))
+@functools.partial(_xla.TopJit, static_argnames=("rtol", "atol", "max_steps", "has_prior"))
 def _lm_starts(theta0, r, y, ref, weight, *, rtol, atol, max_steps, has_prior):
     """Levenberg–Marquardt from every row of ``theta0``, vmapped; compiled once per shapes and settings (new data
     and starts reuse it)."""

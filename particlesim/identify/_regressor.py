@@ -37,7 +37,7 @@ def rigid_regressor(model: TreeModel, q: Float[ArrayLike, "N n"], qd: Float[Arra
     """``d tau / d inertia`` per sample (rigid-body part only: friction and rotor terms do not depend on it)."""
     q, qd, qdd = (jnp.asarray(x, dtype=float) for x in (q, qd, qdd))
     bare = _strip(model)
-    f = _xla.jit(jax.vmap(lambda a, b, c: _rigid(bare, a, b, c)))
+    f = _xla.TopJit(jax.vmap(lambda a, b, c: _rigid(bare, a, b, c)))
     out = [f(q[i:i + chunk], qd[i:i + chunk], qdd[i:i + chunk]) for i in range(0, q.shape[0], chunk)]
     return jnp.concatenate(out, axis=0)
 

@@ -90,7 +90,7 @@ def fit_rollout(theta0, model: TreeModel, windows: Windows, *, eps: float, max_s
 
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, verbose=_show if verbose else False)
     x0 = theta0[idx]
-    rms = _xla.jit(lambda x: jnp.sqrt(jnp.mean(residual(x, None) ** 2)))
+    rms = _xla.TopJit(lambda x: jnp.sqrt(jnp.mean(residual(x, None) ** 2)))
     before = float(rms(x0))
     sol = optx.least_squares(residual, solver, x0, max_steps=max_steps, throw=False)
     after = float(rms(sol.value))

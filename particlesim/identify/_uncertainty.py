@@ -168,7 +168,7 @@ def bootstrap_base(w: Float[ArrayLike, "N n p"], tau: Float[ArrayLike, "N n"], t
     def residual(theta, target):
         return e_mat @ params_from_theta(theta) - target
 
-    @_xla.jit
+    @_xla.TopJit
     @jax.vmap
     def run(target):
         sol = optx.least_squares(residual, solver, jnp.asarray(theta0, dtype=float), args=target,

@@ -295,7 +295,7 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     return _batched(model, q, qd, tau, smooth_friction)
 
 
-@compiled("forward_dynamics batch", static=("smooth_friction",), arrays_only=True, options=True)
+@compiled("forward_dynamics batch", static=("smooth_friction",), arrays_only=True, batch=True)
 def _batched(model: TreeModel, q, qd, tau, smooth_friction):
     """A batch, compiled once per model structure and batch shape (hundreds of small operations would otherwise
     be dispatched one by one when called outside ``jit``), with XLA's reductions on its YNNPACK kernels

@@ -164,7 +164,8 @@ def test_damping_and_armature_twin_rotor_inertia_and_viscous_friction(shared_dat
 # ---- rollouts ---------------------------------------------------------------------------------------------------
 
 ROLL_RTOL, ROLL_ATOL = 1e-12, 1e-12  # Dopri8; its own global error on this problem is ~1e-10 (measured below)
-#: Our rollout's own error as a reference for the RK4 twin after 1 s, q [rad] and q̇ [rad/s] (round-off floor 8e-10).
+#: Our rollout's own error as a reference for the RK4 twin after 1 s, q [rad] and q̇ [rad/s] (q̇'s round-off floor
+#: measured 8e-10).
 OURS_FLOOR = 1e-9
 
 
@@ -199,12 +200,13 @@ def _mujoco_rk4(shared_data, jm, q0, qd0, dt, t1=1.0):
 def test_krang_falls_like_mujoco_rk4_within_integrator_error(shared_data, krang, krang_rollout):
     """1 s of fixed-wheel Krang falling under gravity from a random pose, no friction, no input.
 
-    RK4 is 4th order: e(h) ≈ K h⁴, so e(1e-4) ≈ 16/15 · |x(1e-4) − x(5e-5)| (Richardson). Measured: step-halving
-    difference 1.0e-8 rad (q) / 3.2e-7 rad/s (q̇); ours − RK4(1e-4) is 1.07e-8 / 3.4e-7, i.e. the estimate itself;
-    ours − RK4(5e-5) is 6.8e-10 / 2.1e-8, 1/16 of it: RK4 converges to our solution at its own order.
-    Tolerance: twice the Richardson estimate plus 1e-9 for our Dopri8 error (``OURS_FLOOR``), in both checks: round-off
-    alone moves our q̇ after 1 s by up to 8e-10 rad/s (two solves at rtol 1e-13 that differ only in XLA's code
-    emitters), the same order as RK4(5e-5)'s own q̇ error (~2e-9).
+    RK4 is 4th order: e(h) ≈ K h⁴, so e(1e-4) ≈ 16/15 · |x(1e-4) − x(5e-5)| (Richardson). Measured (2026-12-04):
+    ours − RK4(1e-4) is 1.9e-9 rad (q) / 3.6e-8 rad/s (q̇); ours − RK4(5e-5) is 1.2e-10 / 4.1e-9 (4.7e-9 when our
+    programs use XLA's direct emitters): RK4 converges to our solution at its own order (16× in q, 7.7-8.7× in q̇).
+    The q̇ ratio sits at the check's 8 because our own q̇ is not exact to that level: round-off alone moves it after
+    1 s by 8e-10 rad/s (two Dopri8 solves at rtol 1e-13 differing only in XLA's code emitters), against RK4(5e-5)'s
+    own q̇ error of ~2.3e-9. Tolerances: twice the Richardson estimate plus 1e-9 for our error (``OURS_FLOOR``); the
+    convergence check allows the same 1e-9 in q̇ only (a 2nd-order RK4, its error down 4× per halving, 9e-9, fails).
     """
     model, _, jm = krang
     q0, qd0 = _krang_start(model.nq)
@@ -216,8 +218,10 @@ def test_krang_falls_like_mujoco_rk4_within_integrator_error(shared_data, krang,
     for part in (slice(0, n), slice(n, 2 * n)):  # positions, velocities
         rk4_err = 16.0 / 15.0 * np.max(np.abs(coarse[part] - fine[part]))
         assert np.max(np.abs(ours[part] - coarse[part])) <= 2.0 * rk4_err + OURS_FLOOR
-        # Convergence at 4th order towards ours: the error must shrink by ~16 when h halves (accept ≥ 8), up to our own.
-        assert np.max(np.abs(ours[part] - fine[part])) <= np.max(np.abs(ours[part] - coarse[part])) / 8.0 + OURS_FLOOR
+        # Convergence at 4th order towards ours: the error must shrink by ~16 when h halves (accept ≥ 8); in q̇ up to
+        # our own error (see above).
+        floor = OURS_FLOOR if part.start == n else 0.0
+        assert np.max(np.abs(ours[part] - fine[part])) <= np.max(np.abs(ours[part] - coarse[part])) / 8.0 + floor
 
 
 @pytest.mark.slow
