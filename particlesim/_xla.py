@@ -100,6 +100,10 @@ class TopJit:
     def lower(self, *args, **kwargs):
         return self._pick().lower(*args, **kwargs)
 
+    def _cache_size(self) -> int:
+        """Programs compiled so far, top-level and nested together (compile-once tests read it)."""
+        return self._nested._cache_size() + (0 if self._top is None else self._top._cache_size())
+
     def __getattr__(self, name):
         if name.startswith("_"):
             raise AttributeError(name)
