@@ -43,11 +43,10 @@ def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = 
     Every parameter after the model, except those named in ``static`` (settings: strings, numbers, ``None``, part of
     the cache key) and ``props`` (a pytree of arrays), is an array and is converted before dispatch. ``check(model,
     arrays)`` runs before dispatch with the converted arrays by parameter name. ``arrays_only``: every leaf of the
-    model is an array (a :class:`~particlesim.tree.TreeModel`), so the entry is a plain ``jax.jit`` (its dispatch
+    model is an array (a :class:`~particlesim.tree.TreeModel`), so the entry jits the function itself (its dispatch
     is a few microseconds cheaper than sorting leaves into arrays and static values, which a mechanism's force-law
-    callables need). Called at top level, every entry is compiled with
-    :func:`particlesim._xla.cpu_options` (with the batch options for ``batch``); inside a caller's trace it is
-    inlined. The undecorated function stays available as ``.raw`` for callers already inside a trace."""
+    callables need). Called at top level, every entry is compiled with :func:`particlesim._xla.cpu_options` (with
+    the batch options for ``batch``; :class:`particlesim._xla.TopJit`); inside a caller's trace it is inlined. The undecorated function stays available as ``.raw`` for callers already inside a trace."""
 
     def wrap(fn):
         sig = inspect.signature(fn)

@@ -95,6 +95,9 @@ class TopJit:
         return self._top
 
     def __call__(self, *args, **kwargs):
+        top = self._top  # the common call, once built: one check of the trace state before dispatch
+        if top is not None and _trace_state_clean():
+            return top(*args, **kwargs)
         return self._pick()(*args, **kwargs)
 
     def lower(self, *args, **kwargs):

@@ -121,7 +121,7 @@ def trace_model(mech, q0, ts, params: Mapping[str, tuple], observe: Callable, *,
     shape = (len(runs), ts.size) + jax.eval_shape(lambda q: jnp.asarray(observe(mech, q)), q0).shape
     outputs = _xla.TopJit(jax.vmap(all_runs))
     residual_jacobian = _xla.TopJit(jax.vmap(lambda lp, y: jax.jacfwd(residual, has_aux=True)(lp, y)[::-1],
-                                         in_axes=(0, None)))
+                                             in_axes=(0, None)))
     return TraceModel(names, ts, len(runs), tuple(shape), outputs, residual_jacobian)
 
 

@@ -72,8 +72,9 @@ def krang_fall(out_dir: Path, *, progress: bool = True) -> dict:
     q0 = _initial_pose(n)
     ts = np.linspace(0.0, DURATION, N_SAVE)
 
-    run = _xla.TopJit(lambda mdl, q: simulate(forward_dynamics, mdl, q, jnp.zeros(n), 0.0, DURATION, solver="dopri5",
-                                          rtol=1e-10, atol=1e-12, saveat_ts=ts, progress=progress))
+    run = _xla.TopJit(lambda mdl, q: simulate(forward_dynamics, mdl, q, jnp.zeros(n), 0.0, DURATION,
+                                              solver="dopri5", rtol=1e-10, atol=1e-12, saveat_ts=ts,
+                                              progress=progress))
     t0 = time.perf_counter()
     sol = jax.block_until_ready(run(model, q0))  # first call: compile + run
     t_first = time.perf_counter() - t0

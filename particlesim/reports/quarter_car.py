@@ -34,8 +34,8 @@ def quarter_car_report(out_dir: Path, *, progress: bool = True, solver: str = "d
     mech, x0 = quarter_car()
     t_build = time.perf_counter() - t0
     ts = np.linspace(0.0, DURATION, N_SAVE)
-    run = _xla.TopJit(lambda m, x: simulate_mechanism(m, x, jnp.zeros_like(x), 0.0, DURATION, solver=solver, rtol=rtol,
-                                                  atol=rtol * 1e-2, saveat_ts=ts, progress=progress))
+    run = _xla.TopJit(lambda m, x: simulate_mechanism(m, x, jnp.zeros_like(x), 0.0, DURATION, solver=solver,
+                                                      rtol=rtol, atol=rtol * 1e-2, saveat_ts=ts, progress=progress))
     t0 = time.perf_counter()
     compiled = run.lower(mech, jnp.asarray(x0)).compile()
     t_compile = time.perf_counter() - t0

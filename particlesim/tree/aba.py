@@ -39,14 +39,20 @@ __all__ = ["UNROLL_LINKS", "ONE_STATE_SWEEPS_DEPTH", "supports_aba", "one_state_
 
 
 @functools.lru_cache(maxsize=64)
-def _order(parents: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """Links parents first, and each link's parent as a position in that order (``n``: the world)."""
-    n = len(parents)
-    depth = [-1] * n
-    while min(depth) < 0:  # parents are acyclic (checked by TreeModel): at most n passes
+def _depths(parents: tuple) -> list[int]:
+    """Each link's depth in the tree: 0 for a child of the world."""
+    depth = [-1] * len(parents)
+    while depth and min(depth) < 0:  # parents are acyclic (checked by TreeModel): at most n passes
         for i, p in enumerate(parents):
             if depth[i] < 0 and (p < 0 or depth[p] >= 0):
                 depth[i] = 0 if p < 0 else depth[p] + 1
+    return depth
+
+
+def _order(parents: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Links parents first, and each link's parent as a position in that order (``n``: the world)."""
+    n = len(parents)
+    depth = _depths(parents)
     order = np.asarray(sorted(range(n), key=lambda i: (depth[i], i)), dtype=np.int32)
     pos = np.empty(n, dtype=np.int32)
     pos[order] = np.arange(n, dtype=np.int32)
@@ -83,10 +89,7 @@ ONE_STATE_SWEEPS_DEPTH = 8.0
 @functools.lru_cache(maxsize=64)
 def _mean_depth(parents: tuple) -> float:
     """Mean number of links from each link to the root, itself included."""
-    depth = [0] * len(parents)
-    for i in _order(parents)[0]:
-        depth[i] = 1 if parents[i] < 0 else depth[parents[i]] + 1
-    return sum(depth) / max(1, len(parents))
+    return sum(d + 1 for d in _depths(parents)) / max(1, len(parents))
 
 
 def one_state_sweeps(model: TreeModel) -> bool:

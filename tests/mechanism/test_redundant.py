@@ -73,13 +73,18 @@ def test_doubled_closure_rollout(pair):
     the doubled closure's least-squares solve is not. So the doubled closure is compared with the single exact
     closure up to 1.5 s, and over 3 s through the flat position with the single closure solved by least squares."""
     mech, doubled, _, _, x, xd = pair
-    lsq = dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, least_squares=True))
+    lsq = _least_squares(mech)
     for single, t1 in ((mech, 1.5), (lsq, 3.0)):
         kw = dict(solver="dopri8", rtol=1e-10, atol=1e-12, saveat_ts=jnp.linspace(0.0, t1, 7))
         s1 = simulate_mechanism(single, x, xd, 0.0, t1, **kw)
         s2 = simulate_mechanism(doubled, x, xd, 0.0, t1, **kw)
         assert float(jnp.max(jnp.abs(s1.q - s2.q))) <= ROLLOUT_TOL
         assert float(jnp.max(jnp.abs(jax.vmap(lambda a, b: velocity_constraints(doubled, a, b))(s2.q, s2.qd)))) <= 1e-12
+
+
+def _least_squares(mech):
+    """The same mechanism with its multipliers solved by least squares."""
+    return dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, least_squares=True))
 
 
 def _rel_gap(a, b) -> float:
@@ -94,7 +99,7 @@ def _off(x):
 
 def test_least_squares_equals_exact_on_a_full_rank_mechanism(pair):
     mech, _, _, _, x, xd = pair
-    lsq = dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, least_squares=True))
+    lsq = _least_squares(mech)
     a1, l1 = accelerations_and_multipliers(mech, 0.0, x, xd)
     a2, l2 = accelerations_and_multipliers(lsq, 0.0, x, xd)
     assert _rel_gap(a2, a1) <= ACC_RTOL and _rel_gap(l2, l1) <= ACC_RTOL
