@@ -121,8 +121,8 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
             (4-8) for adaptive rollouts on CPU: vectorised members step together until the slowest is done and
             every step carries the whole slice; on the 18-joint Krang a chunk of 4 ran 2.4x faster per member
             than a vectorised batch of 64 (``benchmarks/batched_rollouts.py``). Particle mechanisms run fastest
-            one member at a time (``chunk=1``): on 1024 quarter cars 2.6x the throughput of vmap or chunks of 8
-            (``benchmarks/mechanism_engine.py``); split the batch over host devices to use every core.
+            one member at a time (``chunk=1``, a plain loop): on 1024 quarter cars 3.0-3.7x the throughput of chunks of
+            8 or vmap (``benchmarks/mechanism_engine.py``); split the batch over host devices to use every core.
 
     Returns:
         A jitted function of the batched arguments whose outputs carry the batch on their leading axis, split
@@ -157,6 +157,8 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
             xs = [flat[i] for i in batched]
             if chunk is None:
                 return jax.vmap(member)(xs)
+            if chunk == 1:  # a plain loop: lax.map's batch_size would vmap every member over an axis of one
+                return jax.lax.map(member, xs)
             return jax.lax.map(member, xs, batch_size=int(chunk))
 
         specs = jax.tree.unflatten(treedef, [P(AXIS) if ax == 0 else P() for ax in axes])

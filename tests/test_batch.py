@@ -99,10 +99,10 @@ def test_sharded_batch_on_eight_host_devices_equals_unsharded():
     assert "does not split evenly over 8 devices" in r["uneven"]
 
 
-@pytest.mark.parametrize("chunk", [None, 2])
+@pytest.mark.parametrize("chunk", [None, 2, 1])
 def test_batch_of_parameter_sets_equals_single_rollouts(krang, chunk):
-    """One device, whole batch vectorised (chunk None) or looped in chunks of 2 (the last one short): every
-    member equals its own rollout."""
+    """One device, whole batch vectorised (chunk None), looped in chunks of 2 (the last one short) or one member
+    after another (chunk 1, a plain loop without vmap): every member equals its own rollout."""
     rng = np.random.default_rng(3)
     b = 3
     inertias = krang.inertia[None] * jnp.asarray(rng.uniform(0.8, 1.2, (b, krang.nq, 1)))
