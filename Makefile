@@ -7,7 +7,7 @@ JOBS   ?= 2
 STAMP  := $(VENV)/.installed-stamp
 BENCH_STAMP := $(VENV)/.bench-stamp
 
-.PHONY: run test bench clean
+.PHONY: run test test-xla-defaults bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +22,13 @@ run: $(STAMP)
 ## test: the whole test suite (float64), one worker per core, each test module kept on one worker
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(JOBS) --dist loadscope $(PYTEST_ARGS)
+
+## test-xla-defaults: the reference and round-off-sensitive tests again with the tests' own jits on XLA's default
+## CPU emitters (as a user's own jax.jit), not the faster-compiling ones the suite uses (tests/conftest.py)
+XLA_DEFAULTS_TESTS ?= tests/mechanism/test_redundant.py tests/mechanism/test_nikravesh.py \
+	tests/tree/test_pinocchio.py tests/tree/test_dart.py tests/twins/test_krang_twin.py
+test-xla-defaults: $(STAMP)
+	PARTICLESIM_TEST_XLA_DEFAULTS=1 $(PY) -m pytest -q -n $(JOBS) --dist loadscope $(XLA_DEFAULTS_TESTS) $(PYTEST_ARGS)
 
 $(BENCH_STAMP): $(STAMP)
 	$(PY) -m pip install --quiet -e ".[test,bench]"
