@@ -373,13 +373,30 @@ def differentiated(tree) -> bool:
     return False
 
 
+def _throws_itself(cfg: Settings) -> bool:
+    """Whether a failed solve is raised here (:func:`_raise_failed`) rather than by diffrax: always with ``throw``,
+    except under BacksolveAdjoint, whose backward solve takes its ``throw`` from the forward one."""
+    return cfg.throw and not isinstance(cfg.adjoint, diffrax.BacksolveAdjoint)
+
+
+def _raise_failed(x, result, hint: str = ""):
+    """``x``, raising diffrax's own error at run time when ``result`` is a failure (as ``diffeqsolve(throw=True)``
+    does), with ``hint`` (what usually causes it in this kind of model, and what to do) after the max-steps
+    message."""
+    messages = list(diffrax.RESULTS._index_to_message)
+    if hint:
+        i = int(np.asarray(diffrax.RESULTS.max_steps_reached._value))
+        messages[i] = f"{messages[i]} {hint}"
+    return eqx.branched_error_if(x, result != diffrax.RESULTS.successful, result._value, messages)
+
+
 #: Event times are located by Newton's method on the step's dense output to this tolerance [s].
 EVENT_TOL = 1e-13
 
 
 def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_surfaces: int, max_events: int, *,
                      t0: Array, t1: Array, rtol: Array, atol: Array, dt0, ts, cfg: Settings,
-                     projection: Callable | None = None):
+                     projection: Callable | None = None, hint: str = ""):
     """:func:`integrate` of a switching system as smooth segments joined at located events.
 
     ``modes`` (S,) holds each switching element's law (1.0 on, 0.0 off) and stays fixed within a segment:
@@ -394,6 +411,7 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
     import optimistix as optx
 
     solver, controller = _solver_and_controller(cfg, rtol, atol, projection)
+    own = _throws_itself(cfg)
     save = ts if cfg.save_ts else jnp.stack([t0, t1])
     root = optx.Newton(rtol=EVENT_TOL, atol=EVENT_TOL)
     conds = [lambda t, y, args, _i=i, **kw: surfaces(t, y, args[0], args[1])[_i] for i in range(n_surfaces)]
@@ -405,8 +423,8 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
         sol = diffrax.diffeqsolve(
             term, solver, t0=t_s, t1=t1, dt0=dt0, y0=y_s, args=(args, modes),
             saveat=diffrax.SaveAt(subs=[diffrax.SubSaveAt(ts=jnp.clip(save, t_s, t1)), diffrax.SubSaveAt(t1=True)]),
-            stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps, throw=cfg.throw,
-            event=event)
+            stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps,
+            throw=cfg.throw and not own, event=event)
         which = jnp.stack([jnp.asarray(m) for m in sol.event_mask])
         hit = jnp.any(which)
         t_e = sol.ts[1][0]  # the event time (t1 without an event)
@@ -436,6 +454,8 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
             jnp.zeros((max_events,), dtype=bool))
     out, _ = jax.lax.scan(segment, init, None, length=max_events + 1)
     t_end, _, _, ys, steps, rejected, result, n_ev, ev_t, ev_el, ev_on = out
+    if own:
+        ys = _raise_failed(ys, result, hint)
     too_many = t_end < t1
     result = diffrax.RESULTS.where(too_many & (result == diffrax.RESULTS.successful),
                                    diffrax.RESULTS.event_occurred, result)
@@ -448,18 +468,21 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
 
 
 def integrate(field: Callable, y0, args, *, t0: Array, t1: Array, rtol: Array, atol: Array, dt0, ts,
-              cfg: Settings, projection: Callable | None = None):
+              cfg: Settings, projection: Callable | None = None, hint: str = ""):
     """``diffrax.diffeqsolve`` of ``dy/dt = field(t, y, args)`` with the settings ``cfg``; ``projection(t, y, args)``
     is applied after every step when given. Returns ``(ts, ys, steps, rejected, result, ok)``; ``ys`` are NaN
-    when the run failed (``throw=False``)."""
+    when the run failed (``throw=False``). With ``throw`` a failure raises diffrax's error, followed by ``hint``
+    when the step budget ran out."""
     solver, controller = _solver_and_controller(cfg, rtol, atol, projection)
+    own = _throws_itself(cfg)
     saveat = diffrax.SaveAt(ts=ts) if cfg.save_ts else diffrax.SaveAt(t0=True, t1=True)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(field), solver, t0=t0, t1=t1, dt0=dt0, y0=y0, args=args, saveat=saveat,
-        stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps, throw=cfg.throw,
+        stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps, throw=cfg.throw and not own,
         progress_meter=diffrax.TqdmProgressMeter() if cfg.progress else diffrax.NoProgressMeter())
     ok = sol.result == diffrax.RESULTS.successful
-    ys = jax.tree.map(lambda y: jnp.where(ok, y, jnp.nan), sol.ys)
+    ys = _raise_failed(sol.ys, sol.result, hint) if own else sol.ys
+    ys = jax.tree.map(lambda y: jnp.where(ok, y, jnp.nan), ys)
     return sol.ts, ys, sol.stats["num_accepted_steps"], sol.stats["num_rejected_steps"], sol.result, ok
 
 

@@ -13,6 +13,7 @@ reversal is located:
 
 import warnings
 
+import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -145,3 +146,17 @@ def test_evented_rollouts_batch_under_vmap():
         assert n >= 2
         np.testing.assert_allclose(np.asarray(batch.events.ts[i, :n]), np.asarray(one.events.ts[:n]), atol=BATCH_TOL)
     assert not np.allclose(np.asarray(batch.q[0]), np.asarray(batch.q[1]))
+
+
+def test_an_evented_rollout_out_of_steps_raises_or_reports():
+    """The step budget covers the whole evented run: exhausted, it raises diffrax's message (throw=True) or is
+    reported in the solution, whose states are NaN (throw=False)."""
+    def run(throw):
+        return simulate(forward_dynamics, _model(jnp.asarray(P0)), jnp.zeros(1), jnp.zeros(1), 0.0, T_END,
+                        solver="tsit5", rtol=1e-10, atol=1e-12, events=True, max_steps=4, throw=throw)
+
+    with pytest.raises(Exception, match="maximum number of solver steps"):
+        jax.block_until_ready(run(True).q)
+    sol = run(False)
+    assert not bool(sol.ok) and sol.status == diffrax.RESULTS.max_steps_reached
+    assert np.all(np.isnan(np.asarray(sol.q)))

@@ -132,6 +132,20 @@ def _initial_contact(deflection, q0, qd0, xdd_free):
     return jnp.where(d != 0.0, d < 0.0, entering).astype(q0.dtype)
 
 
+def _budget_hint(mech: Mechanism) -> str:
+    """What usually exhausts a mechanism rollout's step budget, and what to do (appended to diffrax's message)."""
+    hint = ("For a mechanism, the usual causes: a force element much stiffer than the motion (spring, damper, "
+            "tyre), which holds an explicit solver to tiny steps (an implicit solver such as solver='kvaerno5' "
+            "takes large ones)")
+    if mech.n_constraints and not mech.topo.least_squares:
+        hint += ("; or a singular position, where the constraint rows lose rank (e.g. a parallelogram four-bar "
+                 "passing its flat position): this mechanism solves for exact multipliers, which do not exist "
+                 "there, and the step size collapses (many rejected steps: simulate_mechanism(..., throw=False) "
+                 "returns them in Solution.rejected). Build it with multipliers='least_squares' to move through "
+                 "such positions")
+    return hint + "."
+
+
 @_ode.cached("simulate_mechanism")
 def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabilise, baumgarte, solve,
               max_events=0, warn_switch=False):
@@ -186,11 +200,12 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
                                          contact=jnp.zeros(len(mech.topo.tyre_names), bool))[0])
         ts_, (qs, qds), steps, rejected, result, ok, events = _ode.integrate_events(
             field_modes, (q0, qd0), args0, modes0, surfaces, len(mech.topo.tyre_names), max_events, t0=t0, t1=t1,
-            rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg, projection=projection if stabilise else None)
+            rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg, projection=projection if stabilise else None,
+            hint=_budget_hint(mech))
     else:
         ts_, (qs, qds), steps, rejected, result, ok = _ode.integrate(
             field, (q0, qd0), args0, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
-            cfg=cfg, projection=projection if stabilise else None)
+            cfg=cfg, projection=projection if stabilise else None, hint=_budget_hint(mech))
     if stabilise:
         qs, qds = jax.lax.map(lambda tab: projection(tab[0], tab[1:], args0), (ts_, qs, qds))
     if warn_switch:  # a differentiated rollout stepping across a tyre's switch: say so (derivatives are biased)

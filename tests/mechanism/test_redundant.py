@@ -5,6 +5,7 @@ the refusal that stays available."""
 import dataclasses
 import warnings
 
+import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -123,3 +124,22 @@ def test_chain_solve_refuses_least_squares(pair):
     _, doubled, _, _, _, _ = pair
     with pytest.raises(ModelError, match="least-squares multipliers .* solve='dense'|only bodies"):
         chain_plan(doubled)
+
+
+def test_exhausted_step_budget_says_what_usually_causes_it(pair):
+    """A mechanism rollout that runs out of steps says what usually causes that: a stiff element (an implicit
+    solver is the way out) and, when the mechanism solves for exact multipliers, a singular position (least-squares
+    multipliers are); with throw=False it is reported instead. (Whether the exact four-bar's rollout through its
+    flat position exhausts the budget depends on round-off, see test_doubled_closure_rollout; a budget of 4 steps
+    runs out for certain.)"""
+    mech, doubled, _, _, x, xd = pair
+    kw = dict(solver="tsit5", rtol=1e-8, atol=1e-10, max_steps=4)
+    with pytest.raises(Exception, match=r"(?s)maximum number of solver steps.*solver='kvaerno5'.*singular position"
+                                        r".*multipliers='least_squares'"):
+        jax.block_until_ready(simulate_mechanism(mech, x, xd, 0.0, 1.0, **kw).q)
+    with pytest.raises(Exception, match=r"(?s)maximum number of solver steps.*solver='kvaerno5'") as info:
+        jax.block_until_ready(simulate_mechanism(doubled, x, xd, 0.0, 1.0, **kw).q)
+    assert "singular position" not in str(info.value)  # least-squares multipliers already
+    sol = simulate_mechanism(mech, x, xd, 0.0, 1.0, throw=False, **kw)
+    assert not bool(sol.ok) and sol.status == diffrax.RESULTS.max_steps_reached
+    assert np.all(np.isnan(np.asarray(sol.q)))
