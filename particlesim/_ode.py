@@ -373,16 +373,20 @@ def differentiated(tree) -> bool:
     return False
 
 
-def _throws_itself(cfg: Settings) -> bool:
-    """Whether a failed solve is raised here (:func:`_raise_failed`) rather than by diffrax: always with ``throw``,
-    except under BacksolveAdjoint, whose backward solve takes its ``throw`` from the forward one."""
-    return cfg.throw and not isinstance(cfg.adjoint, diffrax.BacksolveAdjoint)
+def _who_throws(cfg: Settings) -> tuple[bool, bool]:
+    """``(here, diffrax)``: whether a failed solve is raised here (:func:`_raise_failed`, with a hint) or by diffrax's
+    ``throw``. Here whenever ``throw``, except under BacksolveAdjoint, whose backward solve takes its ``throw`` from
+    the forward one."""
+    backsolve = isinstance(cfg.adjoint, diffrax.BacksolveAdjoint)
+    return cfg.throw and not backsolve, cfg.throw and backsolve
 
 
 def _raise_failed(x, result, hint: str = ""):
-    """``x``, raising diffrax's own error at run time when ``result`` is a failure (as ``diffeqsolve(throw=True)``
-    does), with ``hint`` (what usually causes it in this kind of model, and what to do) after the max-steps
-    message."""
+    """``x`` (a pytree: pass every output, since JAX drops an error check whose output goes unused), raising
+    diffrax's own error at run time when ``result`` is a failure, as ``diffeqsolve(throw=True)`` does, with ``hint``
+    (what usually causes it in this kind of model, and what to do) after the max-steps message. Reads the message
+    table of diffrax's RESULTS (an equinox enumeration: ``_index_to_message``, ``_value``; diffrax 0.7.2, equinox
+    0.13.8, pinned in pyproject.toml)."""
     messages = list(diffrax.RESULTS._index_to_message)
     if hint:
         i = int(np.asarray(diffrax.RESULTS.max_steps_reached._value))
@@ -411,7 +415,7 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
     import optimistix as optx
 
     solver, controller = _solver_and_controller(cfg, rtol, atol, projection)
-    own = _throws_itself(cfg)
+    own, diffrax_throws = _who_throws(cfg)
     save = ts if cfg.save_ts else jnp.stack([t0, t1])
     root = optx.Newton(rtol=EVENT_TOL, atol=EVENT_TOL)
     conds = [lambda t, y, args, _i=i, **kw: surfaces(t, y, args[0], args[1])[_i] for i in range(n_surfaces)]
@@ -420,11 +424,13 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
 
     def segment(carry, _):
         t_s, y_s, modes, acc, steps, rejected, failed, n_ev, ev_t, ev_el, ev_on = carry
+        # after a failed segment the rest are empty (start at t1), as after the last one of a run that finished
+        t_s = jnp.where(failed == diffrax.RESULTS.successful, t_s, t1)
         sol = diffrax.diffeqsolve(
             term, solver, t0=t_s, t1=t1, dt0=dt0, y0=y_s, args=(args, modes),
             saveat=diffrax.SaveAt(subs=[diffrax.SubSaveAt(ts=jnp.clip(save, t_s, t1)), diffrax.SubSaveAt(t1=True)]),
-            stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps,
-            throw=cfg.throw and not own, event=event)
+            stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps, throw=diffrax_throws,
+            event=event)
         which = jnp.stack([jnp.asarray(m) for m in sol.event_mask])
         hit = jnp.any(which)
         t_e = sol.ts[1][0]  # the event time (t1 without an event)
@@ -453,18 +459,19 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
             diffrax.RESULTS.successful, zero, jnp.full((max_events,), jnp.inf), jnp.full((max_events,), -1),
             jnp.zeros((max_events,), dtype=bool))
     out, _ = jax.lax.scan(segment, init, None, length=max_events + 1)
-    t_end, _, _, ys, steps, rejected, result, n_ev, ev_t, ev_el, ev_on = out
     if own:
-        ys = _raise_failed(ys, result, hint)
+        out = _raise_failed(out, out[6], hint)
+    t_end, _, _, ys, steps, rejected, result, n_ev, ev_t, ev_el, ev_on = out
     too_many = t_end < t1
     result = diffrax.RESULTS.where(too_many & (result == diffrax.RESULTS.successful),
                                    diffrax.RESULTS.event_occurred, result)
     ok = result == diffrax.RESULTS.successful
-    if cfg.throw:
-        ys = eqx.error_if(ys, too_many, f"more switches than max_events = {max_events} before t1: raise max_events "
-                                        "(or a switching element chatters, e.g. a contact at rest)")
     ys = jax.tree.map(lambda y: jnp.where(ok, y, jnp.nan), ys)
-    return save, ys, steps, rejected, result, ok, Events(ts=ev_t, element=ev_el, active=ev_on)
+    outputs = (save, ys, steps, rejected, result, ok, Events(ts=ev_t, element=ev_el, active=ev_on))
+    if cfg.throw:  # on every output: an error check whose output goes unused is dropped
+        outputs = eqx.error_if(outputs, too_many, f"more switches than max_events = {max_events} before t1: raise "
+                                                  "max_events (or a switching element chatters, e.g. a contact at rest)")
+    return outputs
 
 
 def integrate(field: Callable, y0, args, *, t0: Array, t1: Array, rtol: Array, atol: Array, dt0, ts,
@@ -474,15 +481,16 @@ def integrate(field: Callable, y0, args, *, t0: Array, t1: Array, rtol: Array, a
     when the run failed (``throw=False``). With ``throw`` a failure raises diffrax's error, followed by ``hint``
     when the step budget ran out."""
     solver, controller = _solver_and_controller(cfg, rtol, atol, projection)
-    own = _throws_itself(cfg)
+    own, diffrax_throws = _who_throws(cfg)
     saveat = diffrax.SaveAt(ts=ts) if cfg.save_ts else diffrax.SaveAt(t0=True, t1=True)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(field), solver, t0=t0, t1=t1, dt0=dt0, y0=y0, args=args, saveat=saveat,
-        stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps, throw=cfg.throw and not own,
+        stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps, throw=diffrax_throws,
         progress_meter=diffrax.TqdmProgressMeter() if cfg.progress else diffrax.NoProgressMeter())
+    if own:
+        sol = _raise_failed(sol, sol.result, hint)
     ok = sol.result == diffrax.RESULTS.successful
-    ys = _raise_failed(sol.ys, sol.result, hint) if own else sol.ys
-    ys = jax.tree.map(lambda y: jnp.where(ok, y, jnp.nan), ys)
+    ys = jax.tree.map(lambda y: jnp.where(ok, y, jnp.nan), sol.ys)
     return sol.ts, ys, sol.stats["num_accepted_steps"], sol.stats["num_rejected_steps"], sol.result, ok
 
 

@@ -155,7 +155,8 @@ def simulate(
             ``rtol > 0``, ``atol >= 0``.
         dt0: first step; ``None`` lets diffrax choose it from the tolerances.
         saveat_ts: (T,) non-decreasing times in [t0, t1] at which to save; ``None`` saves at t0 and t1.
-        max_steps: step budget (a positive integer); reaching it is an error (see ``throw``).
+        max_steps: step budget (a positive integer; with ``events``, of each smooth segment: a segment that
+            exhausts it ends the run); reaching it is an error (see ``throw``).
         adjoint: ``None``/"checkpoint" (reverse mode, default), "forward" (forward mode, for ``jax.jvp``),
             "direct" (both, more memory), "backsolve", or any diffrax adjoint.
         pid: (pcoeff, icoeff, dcoeff) of the controller; defaults (0.4, 1, 0) explicit, (0.3, 0.3, 0) implicit.

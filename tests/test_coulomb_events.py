@@ -149,14 +149,18 @@ def test_evented_rollouts_batch_under_vmap():
 
 
 def test_an_evented_rollout_out_of_steps_raises_or_reports():
-    """The step budget covers the whole evented run: exhausted, it raises diffrax's message (throw=True) or is
-    reported in the solution, whose states are NaN (throw=False)."""
+    """A segment that exhausts the step budget (``max_steps`` counts per smooth segment) ends the evented run: it
+    raises diffrax's message (throw=True), also when only the step counts are used, or is reported in the solution,
+    whose states are NaN, without running the remaining segments (throw=False)."""
     def run(throw):
         return simulate(forward_dynamics, _model(jnp.asarray(P0)), jnp.zeros(1), jnp.zeros(1), 0.0, T_END,
                         solver="tsit5", rtol=1e-10, atol=1e-12, events=True, max_steps=4, throw=throw)
 
-    with pytest.raises(Exception, match="maximum number of solver steps"):
+    with pytest.raises(jax.errors.JaxRuntimeError, match="maximum number of solver steps"):
         jax.block_until_ready(run(True).q)
+    with pytest.raises(jax.errors.JaxRuntimeError, match="maximum number of solver steps"):
+        jax.block_until_ready(jax.jit(lambda: run(True).steps)())
     sol = run(False)
     assert not bool(sol.ok) and sol.status == diffrax.RESULTS.max_steps_reached
     assert np.all(np.isnan(np.asarray(sol.q)))
+    assert int(sol.steps) + int(sol.rejected) <= 4  # the first segment's budget, nothing after it

@@ -132,18 +132,20 @@ def _initial_contact(deflection, q0, qd0, xdd_free):
     return jnp.where(d != 0.0, d < 0.0, entering).astype(q0.dtype)
 
 
-def _budget_hint(mech: Mechanism) -> str:
+def _budget_hint(mech: Mechanism, solver: str, solve: str) -> str:
     """What usually exhausts a mechanism rollout's step budget, and what to do (appended to diffrax's message)."""
-    hint = ("For a mechanism, the usual causes: a force element much stiffer than the motion (spring, damper, "
-            "tyre), which holds an explicit solver to tiny steps (an implicit solver such as solver='kvaerno5' "
-            "takes large ones)")
-    if mech.n_constraints and not mech.topo.least_squares:
-        hint += ("; or a singular position, where the constraint rows lose rank (e.g. a parallelogram four-bar "
-                 "passing its flat position): this mechanism solves for exact multipliers, which do not exist "
-                 "there, and the step size collapses (many rejected steps: simulate_mechanism(..., throw=False) "
-                 "returns them in Solution.rejected). Build it with multipliers='least_squares' to move through "
-                 "such positions")
-    return hint + "."
+    causes = []
+    if solver not in _ode.IMPLICIT_SOLVERS:
+        causes.append("a force element much stiffer than the motion (spring, damper, tyre), which holds an explicit "
+                      "solver to tiny steps (an implicit solver such as solver='kvaerno5' takes large ones)")
+    if solve == "dense" and mech.n_constraints and not mech.topo.least_squares:
+        causes.append("a singular position, where the constraint rows lose rank (e.g. a parallelogram four-bar "
+                      "passing its flat position): this mechanism solves for exact multipliers, which are not unique "
+                      "there or do not exist, and the step size collapses (many rejected steps: "
+                      "simulate_mechanism(..., throw=False) returns them in Solution.rejected). Build it with "
+                      "multipliers='least_squares' to move through such positions")
+    return f"For a mechanism, the usual {'causes' if len(causes) > 1 else 'cause'}: {'; or '.join(causes)}." \
+        if causes else ""
 
 
 @_ode.cached("simulate_mechanism")
@@ -201,11 +203,11 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
         ts_, (qs, qds), steps, rejected, result, ok, events = _ode.integrate_events(
             field_modes, (q0, qd0), args0, modes0, surfaces, len(mech.topo.tyre_names), max_events, t0=t0, t1=t1,
             rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg, projection=projection if stabilise else None,
-            hint=_budget_hint(mech))
+            hint=_budget_hint(mech, cfg.solver, solve))
     else:
         ts_, (qs, qds), steps, rejected, result, ok = _ode.integrate(
             field, (q0, qd0), args0, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
-            cfg=cfg, projection=projection if stabilise else None, hint=_budget_hint(mech))
+            cfg=cfg, projection=projection if stabilise else None, hint=_budget_hint(mech, cfg.solver, solve))
     if stabilise:
         qs, qds = jax.lax.map(lambda tab: projection(tab[0], tab[1:], args0), (ts_, qs, qds))
     if warn_switch:  # a differentiated rollout stepping across a tyre's switch: say so (derivatives are biased)
@@ -274,6 +276,11 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
     ``max_events`` switches. The switches are reported in ``Solution.events`` (:class:`~particlesim._ode.Events`;
     ``element`` indexes ``mech.topo.tyre_names``). Without events, a differentiated rollout in which a tyre
     switches warns (:class:`SwitchCrossedWarning`). "backsolve" is not available with events.
+
+    ``max_steps`` bounds the steps of the run (of each smooth segment, with ``events``); exhausting it raises
+    (``throw=True``, at run time) with the usual causes for this mechanism and solver — a stiff element under an
+    explicit solver; with exact multipliers, a singular position (build with ``multipliers='least_squares'``) —
+    or is reported in ``Solution.status`` with NaN states (``throw=False``).
 
     Raises ``ValueError`` for unknown names, bad tolerances or times, a non-finite initial state; ``ModelError``
     for wrong state shapes or non-finite mechanism parameters (at run time under jit); the error names the
