@@ -181,15 +181,18 @@ def _ours_batch_rows(thetas, ref, solvers=BATCH_SOLVERS, chunks=BATCH_CHUNKS) ->
         # rtol is traced: one compile serves the whole sweep
         f = jax.jit(jax.vmap(lambda th, r: member(th, r, solver, pid), in_axes=(0, None)),
                     compiler_options=compiler_options())
+        sweep = []
         for rtol in BATCH_RTOLS:
             err = float(np.abs(np.asarray(f(jnp.asarray(thetas[:CHECKED]), rtol)) - ref).max())
+            sweep.append([rtol, err])
             if err <= TARGET:
                 break
         for chunk in chunks:
             fn = sharded_vmap(lambda th: member(th, rtol, solver, pid), chunk=chunk)
             comp, run = _first_and_cached(lambda: jax.block_until_ready(fn(jnp.asarray(thetas))))
             rows.append({"method": _label(solver, pid, chunk, ndev), "setting": f"rtol {rtol:g}",
-                         "checked_error_m": err, "wall_s": run, "compile_s": comp, "per_s": BATCH / run})
+                         "checked_error_m": err, "wall_s": run, "compile_s": comp, "per_s": BATCH / run,
+                         "sweep": sweep})
             print(rows[-1], flush=True)
     return rows
 
@@ -245,6 +248,7 @@ def batch() -> dict:
         return out, m0
 
     site_body = None
+    sweep = []
     for nsteps in BATCH_MUJOCO_STEPS:
         dt = BATCH_T / nsteps
         ms, m0 = models(dt, thetas[:CHECKED])
@@ -260,6 +264,7 @@ def batch() -> dict:
                       for i in range(CHECKED)])
         err = float(np.abs(z - ref).max()) if np.all(np.isfinite(z)) else float("inf")
         print(f"MuJoCo C dt {dt:g}: checked error {err:.2e}", flush=True)
+        sweep.append([dt, err])
         if err <= TARGET:
             break
     ms, _ = models(dt, thetas)
@@ -268,7 +273,8 @@ def batch() -> dict:
         ro = Rollout(ms, s0, int(round(BATCH_T / dt)), nthread=nthread)
         _, wall = ro.timed(3)
         rows.append({"method": f"MuJoCo C mujoco.rollout nthread {max(nthread, 1)}", "setting": f"dt {dt:g}",
-                     "checked_error_m": err, "wall_s": wall, "compile_s": None, "per_s": BATCH / wall})
+                     "checked_error_m": err, "wall_s": wall, "compile_s": None, "per_s": BATCH / wall,
+                     "sweep": sweep})
         print(rows[-1], flush=True)
     mjcb.uninstall()
     return {"rows": rows, "batch": BATCH, "t_end_s": BATCH_T, "checked_members": CHECKED}
@@ -352,6 +358,10 @@ def write(res: dict) -> None:
     plt.close(fig)
 
 
+def _fmt(x: float) -> str:
+    return f"{round(x, 2) + 0.0:.2f}"  # no "-0.00"
+
+
 def markdown(res: dict) -> str:
     env = res["environment"]
     lines = [f"### Mechanism engine: compile, gradients, batch, chain scaling", "",
@@ -367,7 +377,7 @@ def markdown(res: dict) -> str:
         c = next(r for r in res["compile"] if r.get("n") == n and r["solve"] == "chain")
         lines.append(f"| N = {n} | {d['build_s']:.2f} s | {d['compile_s']:.1f} s | {c['compile_s']:.1f} s |")
     lines += ["", f"Compile-time slope (log-log, N = {CHAIN_COMPILE_N[0]}..{CHAIN_COMPILE_N[-1]}): dense "
-              f"{res['compile_slope_chain_dense']:.2f}, chain {res['compile_slope_chain_chain']:.2f}.", ""]
+              f"{_fmt(res['compile_slope_chain_dense'])}, chain {_fmt(res['compile_slope_chain_chain'])}.", ""]
     g = res["gradients"]
     lines += ["| quarter-car loss (9 parameters, 0.5 s) | compile | run | × rollout |", "|---|---:|---:|---:|"]
     for k in ("rollout", "reverse (checkpoint)", "forward (jacfwd)"):
@@ -383,8 +393,16 @@ def markdown(res: dict) -> str:
         comp = "" if r["compile_s"] is None else f"{r['compile_s']:.1f} s"
         lines.append(f"| {r['method']} | {r['setting']} | {r['checked_error_m']:.1e} | {r['wall_s']:.2f} s | "
                      f"{r['per_s']:.0f} | {comp} |")
+    sweeps = [(r["method"], r["sweep"]) for r in b["rows"] if r.get("sweep")]
+    if sweeps:
+        lines += ["", "Settings swept (loosest first, up to the first meeting the target; setting: checked error): " +
+                  "; ".join(f"{m.split(' lax.map')[0]}: " + ", ".join(f"{v:.3g}: {e:.1e}" for v, e in sw)
+                            for m, sw in sweeps if m.endswith("one at a time") or m.endswith("nthread 1")) + "."]
     if b.get("rerun"):
-        lines += ["", f"Batch rows rerun {b['rerun']['date']} (load {b['rerun'].get('load', float('nan')):.1f}). "
+        rr = b["rerun"]
+        load = (f"load {rr['load_before']:.1f} before it, {rr['load']:.1f} after" if "load_before" in rr
+                else f"load {rr.get('load', float('nan')):.1f}")
+        lines += ["", f"Batch rows rerun {rr['date']} ({load}). "
                   "Ours runs each member's adaptive loop alone ('one at a time') or vectorised; vectorised members "
                   "step together and every step carries the whole slice, which costs more per member here."]
     lines += ["", "| revolute chain | solve | build | steps | per projected step |", "|---|---|---:|---:|---:|"]
@@ -392,18 +410,19 @@ def markdown(res: dict) -> str:
         lines.append(f"| N = {r['n']} | {r['solve']} | {r['build_s']:.2f} s | {r['steps']} | "
                      f"{r['per_step_s'] * 1e6:.0f} µs |")
     lines += ["", f"Step-cost slope of the chain path (log-log, N = {CHAIN_STEP_N[0]}..{CHAIN_STEP_N[-1]}): "
-              f"{res['step_slope_chain']:.2f}.", ""]
+              f"{_fmt(res['step_slope_chain'])}.", ""]
     return "\n".join(lines)
 
 
 def rerun_batch() -> dict:
     """Redo only the batch part of the saved results (``python -m benchmarks.mechanism_engine batch``)."""
     res = json.loads((RESULTS / f"{NAME}.json").read_text())
+    before = environment()  # the load before the run (afterwards it counts the run itself)
     started = time.perf_counter()
     res["batch"] = batch()
     env = environment()
-    res["batch"]["rerun"] = {"date": env["date"], "load": env["load_average_1_5_15min"][0],
-                             "took_s": time.perf_counter() - started}
+    res["batch"]["rerun"] = {"date": env["date"], "load_before": before["load_average_1_5_15min"][0],
+                             "load": env["load_average_1_5_15min"][0], "took_s": time.perf_counter() - started}
     return res
 
 
