@@ -80,7 +80,8 @@ def run_size(n: int) -> dict:
     row = {"n": n, "one_state_path": "articulated-body sweeps" if one_state_sweeps(model) else "composite inertias + Cholesky"}
 
     q1, qd1, tau1 = jq[0], jqd[0], jtau[0]  # sliced once (an eager slice per call would cost more than the call)
-    c, single = timed(lambda: jax.jit(forward_dynamics, compiler_options=compiler_options()).lower(model, q1, qd1, tau1).compile())
+    c, single = timed(lambda: jax.jit(forward_dynamics, compiler_options=compiler_options())
+                      .lower(model, q1, qd1, tau1).compile())
     row["compile_single_s"] = c
     single(model, q1, qd1, tau1).block_until_ready()
     calls = 50
@@ -96,7 +97,8 @@ def run_size(n: int) -> dict:
     scanned(q1, qd1, tau1).block_until_ready()
     row["in_scan_us"] = _least(lambda: scanned(q1, qd1, tau1).block_until_ready()) / SCAN * 1e6
 
-    c, batched = timed(lambda: jax.jit(forward_dynamics, compiler_options=cpu_options(batch=True)).lower(model, jq, jqd, jtau).compile())
+    c, batched = timed(lambda: jax.jit(forward_dynamics, compiler_options=cpu_options(batch=True))
+                       .lower(model, jq, jqd, jtau).compile())
     row["compile_batch_s"] = c
     out = np.asarray(batched(model, jq, jqd, jtau))
     row["batch_per_state_us"] = _least(lambda: batched(model, jq, jqd, jtau).block_until_ready()) / BATCH * 1e6

@@ -469,8 +469,9 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
     ys = jax.tree.map(lambda y: jnp.where(ok, y, jnp.nan), ys)
     outputs = (save, ys, steps, rejected, result, ok, Events(ts=ev_t, element=ev_el, active=ev_on))
     if cfg.throw:  # on every output: an error check whose output goes unused is dropped
-        outputs = eqx.error_if(outputs, too_many, f"more switches than max_events = {max_events} before t1: raise "
-                                                  "max_events (or a switching element chatters, e.g. a contact at rest)")
+        outputs = eqx.error_if(outputs, too_many, f"more switches than max_events = {max_events} before t1: "
+                                                  "raise max_events (or a switching element chatters, e.g. a "
+                                                  "contact at rest)")
     return outputs
 
 

@@ -118,12 +118,13 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
         mesh: a one-dimensional mesh with axis :data:`AXIS` (default :func:`batch_mesh` over all devices).
         chunk: ``None`` vectorises each device's whole slice (``vmap``). An integer runs the slice as a loop
             over chunks of that many members (``jax.lax.map(..., batch_size=chunk)``; ``chunk=1`` a plain
-            ``jax.lax.map``, one member per iteration). Prefer a small chunk
-            (4-8) for adaptive rollouts on CPU: vectorised members step together until the slowest is done and
-            every step carries the whole slice; on the 18-joint Krang a chunk of 4 ran 2.4x faster per member
-            than a vectorised batch of 64 (``benchmarks/batched_rollouts.py``). Particle mechanisms run fastest
-            one member at a time (``chunk=1``): on 1024 quarter cars 2.8-3.7x the throughput of chunks of 8 or vmap
-            with Tsit5, 2.5-3.0x with Bosh3 (``benchmarks/mechanism_engine.py``); split the batch over host devices to use every core.
+            ``jax.lax.map``, one member per iteration). Prefer a small chunk (4-8) for adaptive rollouts on CPU:
+            vectorised members step together until the slowest is done and every step carries the whole slice;
+            on the 18-joint Krang a chunk of 4 ran 2.4x faster per member than a vectorised batch of 64
+            (``benchmarks/batched_rollouts.py``). Particle mechanisms run fastest one member at a time
+            (``chunk=1``): on 1024 quarter cars 2.8-3.7x the throughput of chunks of 8 or vmap with Tsit5,
+            2.5-3.0x with Bosh3 (``benchmarks/mechanism_engine.py``); split the batch over host devices to use
+            every core.
 
     Returns:
         A jitted function of the batched arguments whose outputs carry the batch on their leading axis, split

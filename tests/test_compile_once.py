@@ -140,15 +140,14 @@ def test_entries_compile_with_their_options_and_agree_with_xla_defaults(pendulum
     jax.lax.scan(lambda c, x: (probe(c), None), 0.0, jnp.ones(2))
     assert seen == [False] * 5
     # The entries used here compile their top-level programs with the options.
-    mech0, x00 = pendulum
-    simulate_mechanism(mech0, x00, jnp.zeros_like(x00), 0.0, 0.01)
+    mech, x0 = pendulum
+    simulate_mechanism(mech, x0, jnp.zeros_like(x0), 0.0, 0.01)
     forward_dynamics(two_link, jnp.zeros((3, 2)), jnp.zeros((3, 2)), jnp.zeros((3, 2)))  # a batch of three states
     forward_dynamics(two_link, jnp.zeros(2), jnp.zeros(2), jnp.zeros(2))
     assert mechanism_integrate._simulate.jit.top_options == COMPILE_OPTIONS
     assert tree_dynamics._one_state.jit.top_options == COMPILE_OPTIONS
     assert tree_dynamics._batched.jit.top_options == {**COMPILE_OPTIONS, **BATCH_OPTIONS}
     defaults = {key: not value for key, value in COMPILE_OPTIONS.items()}  # the fusion emitters, XLA's default
-    mech, x0 = pendulum
     xd0 = jnp.zeros_like(x0).at[4].set(0.5)
     q0, qd0, tau = jnp.array([0.3, -0.2]), jnp.array([0.5, 1.0]), jnp.array([0.1, -0.4])
     kw = dict(solver="dopri8", rtol=1e-10, atol=1e-10, saveat_ts=np.linspace(0.0, 0.5, 6))

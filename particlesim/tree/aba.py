@@ -39,16 +39,17 @@ __all__ = ["UNROLL_LINKS", "ONE_STATE_SWEEPS_DEPTH", "supports_aba", "one_state_
 
 
 @functools.lru_cache(maxsize=64)
-def _depths(parents: tuple) -> list[int]:
+def _depths(parents: tuple) -> tuple[int, ...]:
     """Each link's depth in the tree: 0 for a child of the world."""
     depth = [-1] * len(parents)
     while depth and min(depth) < 0:  # parents are acyclic (checked by TreeModel): at most n passes
         for i, p in enumerate(parents):
             if depth[i] < 0 and (p < 0 or depth[p] >= 0):
                 depth[i] = 0 if p < 0 else depth[p] + 1
-    return depth
+    return tuple(depth)
 
 
+@functools.lru_cache(maxsize=64)
 def _order(parents: tuple) -> tuple[np.ndarray, np.ndarray]:
     """Links parents first, and each link's parent as a position in that order (``n``: the world)."""
     n = len(parents)
