@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .aba import aba, aba_one_state, one_state_sweeps, supports_aba
+from .aba import aba, aba_one_state, batch_chunks, one_state_sweeps, supports_aba
 from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
@@ -307,8 +307,14 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction):
     if any(x is not None for x in (model.viscous, model.coulomb, model.stiffness, model.limits)):
         extra = functools.partial(_generalised_forces, model, smooth_friction=smooth_friction)
         rhs = jnp.vectorize(extra, signature="(a),(b),(b)->(b)")(q, qd, tau)
-    nb = q.ndim - 1
-    last = tuple(range(1, nb + 1)) + (0,)
-    first = (nb,) + tuple(range(nb))
-    out = aba(model, jnp.transpose(q, first), jnp.transpose(qd, first), jnp.transpose(rhs, first))
-    return jnp.transpose(out, last)
+    batch, n = q.shape[:-1], q.shape[-1]
+    q, qd, rhs = (x.reshape(-1, x.shape[-1]) for x in (q, qd, rhs))  # (B, n): one batch axis
+    size = q.shape[0]
+    k = batch_chunks(size)
+    if k == 1:
+        return aba(model, q.T, qd.T, rhs.T).T.reshape(batch + (n,))
+    per = -(-size // k)  # the last chunk is padded with copies of the last state, cut off below
+    chunked = [jnp.pad(x, ((0, k * per - size), (0, 0)), mode="edge").reshape(k, per, -1).transpose(0, 2, 1)
+               for x in (q, qd, rhs)]
+    out = jax.lax.map(lambda x: aba(model, *x), tuple(chunked))  # (k, n, per), chunk after chunk
+    return out.transpose(0, 2, 1).reshape(k * per, -1)[:size].reshape(batch + (n,))

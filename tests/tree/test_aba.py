@@ -135,6 +135,45 @@ def test_batched_gradients(tiny_tree):
     check_grads(jax.jit(f), (q, qd, tau, model.inertia), order=1, modes=("fwd", "rev"))
 
 
+def test_large_batches_run_in_chunks_with_the_same_results(small_tree):
+    """Past BATCH_CHUNK_ABOVE states a batch is evaluated chunk by chunk (the last one padded): the same values as
+    state by state, leading batch axes kept."""
+    from particlesim.tree import aba as aba_module
+
+    lead = (3, aba_module.BATCH_CHUNK_ABOVE // 3 + 34)  # 1509 states: two chunks, the last one padded
+    size = lead[0] * lead[1]
+    assert aba_module.batch_chunks(size) == 2 and size % 2
+    n = small_tree.nq
+    rng = np.random.default_rng(12)
+    q, qd, tau = (rng.normal(size=lead + (n,)) for _ in range(3))
+    out = forward_dynamics(small_tree, q, qd, tau)
+    assert out.shape == lead + (n,)
+    one = jax.jit(jax.vmap(jax.vmap(lambda a, b, c: forward_dynamics(small_tree, a, b, c))))
+    assert max_rel(out, one(q, qd, tau)) <= SAME_RTOL
+
+
+def test_chunked_batches_differentiate(tiny_tree, monkeypatch):
+    """The chunked layout (here 3 chunks of 4 for 10 states, chunk sizes made small) against finite differences,
+    forward and reverse mode."""
+    from particlesim.tree import aba as aba_module, dynamics
+
+    monkeypatch.setattr(aba_module, "BATCH_CHUNK_ABOVE", 4)
+    monkeypatch.setattr(aba_module, "BATCH_CHUNK", 3)
+    assert aba_module.batch_chunks(10) == 3
+    model = tiny_tree
+    rng = np.random.default_rng(13)
+    q, qd, tau = (jnp.asarray(rng.normal(size=(10, model.nq))) for _ in range(3))
+
+    def f(q, qd, tau, inertia):
+        m = eqx.tree_at(lambda m: m.inertia, model, inertia)
+        return dynamics._batched.raw(m, q, qd, tau, 0.1)
+
+    fn = jax.jit(f)
+    ref = jax.jit(jax.vmap(lambda a, b, c: forward_dynamics(model, a, b, c, smooth_friction=0.1)))(q, qd, tau)
+    assert max_rel(fn(q, qd, tau, model.inertia), ref) <= SAME_RTOL
+    check_grads(fn, (q, qd, tau, model.inertia), order=1, modes=("fwd", "rev"))
+
+
 def test_a_batch_compiles_once_per_structure(small_tree):
     """New parameter values and new states of the same shape reuse the compiled batch (trace counter)."""
     from particlesim import _ode
