@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .aba import aba, aba_one_state, batch_chunks, one_state_sweeps, supports_aba
+from .aba import aba, aba_one_state, batch_chunks, batch_lanes, one_state_sweeps, supports_aba
 from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
@@ -311,10 +311,14 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction):
     q, qd, rhs = (x.reshape(-1, x.shape[-1]) for x in (q, qd, rhs))  # (B, n): one batch axis
     size = q.shape[0]
     k = batch_chunks(size)
-    if k == 1:
+    lanes = batch_lanes(-(-size // k))
+    if k * lanes == size:
         return aba(model, q.T, qd.T, rhs.T).T.reshape(batch + (n,))
-    per = -(-size // k)  # the last chunk is padded with copies of the last state, cut off below
-    chunked = [jnp.pad(x, ((0, k * per - size), (0, 0)), mode="edge").reshape(k, per, -1).transpose(0, 2, 1)
-               for x in (q, qd, rhs)]
-    out = jax.lax.map(lambda x: aba(model, *x), tuple(chunked))  # (k, n, per), chunk after chunk
-    return out.transpose(0, 2, 1).reshape(k * per, -1)[:size].reshape(batch + (n,))
+    # padded at the end with copies of the last state (cut off below), then k chunks of `lanes` states
+    chunked = tuple(jnp.pad(x, ((0, k * lanes - size), (0, 0)), mode="edge").reshape(k, lanes, -1).transpose(0, 2, 1)
+                    for x in (q, qd, rhs))
+    if k == 1:
+        out = aba(model, *(x[0] for x in chunked))[None]
+    else:
+        out = jax.lax.map(lambda x: aba(model, *x), chunked)  # (k, n, lanes), chunk after chunk
+    return out.transpose(0, 2, 1).reshape(k * lanes, -1)[:size].reshape(batch + (n,))

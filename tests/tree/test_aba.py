@@ -152,9 +152,22 @@ def test_large_batches_run_in_chunks_with_the_same_results(small_tree):
     assert max_rel(out, one(q, qd, tau)) <= SAME_RTOL
 
 
+def test_batches_padded_off_multiples_of_64_lanes(small_tree):
+    """A batch of 64 states runs as 72 lanes (the last 8 copies of the last state): the same values as state by
+    state."""
+    from particlesim.tree.aba import batch_lanes
+
+    assert [batch_lanes(p) for p in (3, 40, 64, 512, 520, 768, 1024)] == [8, 40, 72, 520, 520, 768, 1024]
+    rng = np.random.default_rng(14)
+    q, qd, tau = (rng.normal(size=(64, small_tree.nq)) for _ in range(3))
+    out = forward_dynamics(small_tree, q, qd, tau)
+    one = jax.jit(jax.vmap(lambda a, b, c: forward_dynamics(small_tree, a, b, c)))
+    assert out.shape == q.shape and max_rel(out, one(q, qd, tau)) <= SAME_RTOL
+
+
 def test_chunked_batches_differentiate(tiny_tree, monkeypatch):
-    """The chunked layout (here 3 chunks of 4 for 10 states, chunk sizes made small) against finite differences,
-    forward and reverse mode."""
+    """The chunked layout (here 3 chunks of 8 lanes for 10 states, chunk sizes made small) against finite
+    differences, forward and reverse mode."""
     from particlesim.tree import aba as aba_module, dynamics
 
     monkeypatch.setattr(aba_module, "BATCH_CHUNK_ABOVE", 4)
