@@ -18,6 +18,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 __all__ = [
     "sincos",
+    "SINCOS_LIMIT",
     "skew",
     "unskew",
     "rot_x",
@@ -30,10 +31,14 @@ __all__ = [
 ]
 
 
-# Cody-Waite reduction by pi/2 in parts of 33 bits (k * part exact for |k| < 2**20) and the classic minimax
-# polynomials of sin and cos on [-pi/4, pi/4] (the coefficients of the freely distributed fdlibm kernels).
-_PIO2 = (1.57079632673412561417e+00, 6.07710050630396597660e-11, 2.02226624871116645580e-21,
-         8.47842766036889956997e-32)
+# Cody-Waite reduction by pi/2: four parts of 26 significant bits (k * part exact for |k| < 2**27, with or without
+# fused multiply-adds) and the remainder in full precision; then the classic minimax polynomials of sin and cos on
+# [-pi/4, pi/4] (the coefficients of the freely distributed fdlibm kernels).
+_PIO2 = (1.5707963407039642, -1.3909067675399456e-08, 6.123233932053594e-17, 6.368317178484799e-25,
+         -1.4973849048591698e-33)
+#: ``sincos`` covers ``|x| <= SINCOS_LIMIT`` (2**27 * pi/2, about 2.1e8 rad or 3.4e7 turns): beyond, the reduction
+#: would no longer be exact and the result is NaN (no joint of a simulation that has not diverged gets there).
+SINCOS_LIMIT = 2.0**27 * np.pi / 2
 _SIN = (-1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04,
         2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10)
 _COS = (4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05,
@@ -49,18 +54,22 @@ def _horner(coeffs, z):
 
 @jax.custom_jvp
 def sincos(x: Float[ArrayLike, "..."]) -> tuple[Float[Array, "..."], Float[Array, "..."]]:
-    """``(sin x, cos x)`` elementwise, within 2 ulp of the correctly rounded values (tested up to |x| = 1e7).
+    """``(sin x, cos x)`` elementwise, within 2 ulp of the correctly rounded values for ``|x| <=``
+    :data:`SINCOS_LIMIT` (about 2.1e8; NaN beyond, and for non-finite ``x``, as ``jnp.sin`` gives for the latter).
 
     XLA:CPU evaluates a float64 ``jnp.sin`` or ``jnp.cos`` by a scalar library call per element (about 14 ns each on
     this project's CI machine), while these few multiply-adds and selects vectorise with the surrounding fusion
     (about 3 ns for both): a batch of tree states spends a tenth of its time in its joint angles' sines and cosines
-    otherwise. Non-finite ``x`` gives NaN, as ``jnp.sin`` does. Derivatives are exact: ``d sin = cos dx``,
-    ``d cos = -sin dx``."""
+    otherwise. ``sin(-0.0)`` is ``-0.0``. Derivatives are exact: ``d sin = cos dx``, ``d cos = -sin dx``. Other
+    dtypes than float64 use ``jnp.sin`` and ``jnp.cos``."""
     x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating) or x.dtype != jnp.float64:
+    if x.dtype != jnp.float64:
         return jnp.sin(x), jnp.cos(x)  # the polynomials are float64's; other types keep XLA's own
+    x = jnp.where(jnp.abs(x) <= SINCOS_LIMIT, x, jnp.nan)
     k = jnp.round(x * (2.0 / np.pi))
-    r = (((x - k * _PIO2[0]) - k * _PIO2[1]) - k * _PIO2[2]) - k * _PIO2[3]
+    r = x
+    for part in _PIO2:
+        r = r - k * part
     z = r * r
     s = r + r * z * _horner(_SIN, z)
     hz = 0.5 * z
@@ -69,7 +78,8 @@ def sincos(x: Float[ArrayLike, "..."]) -> tuple[Float[Array, "..."], Float[Array
     quadrant = k - 4.0 * jnp.floor(0.25 * k)  # 0, 1, 2, 3 (NaN for non-finite x: NaN results)
     odd = (quadrant == 1.0) | (quadrant == 3.0)
     s, c = jnp.where(odd, c, s), jnp.where(odd, s, c)
-    return jnp.where(quadrant >= 2.0, -s, s), jnp.where((quadrant == 1.0) | (quadrant == 2.0), -c, c)
+    s = jnp.where(quadrant >= 2.0, -s, s)
+    return jnp.where(x == 0.0, x, s), jnp.where((quadrant == 1.0) | (quadrant == 2.0), -c, c)  # keeps sin(-0) = -0
 
 
 @sincos.defjvp

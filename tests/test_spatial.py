@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 from jax.test_util import check_grads
 from scipy.spatial.transform import Rotation
 
-from particlesim.spatial import (frame_from_points, quaternion_to_matrix, rot_x, rot_y, rot_z, rpy_to_matrix, sincos,
-                                 skew, unit_axis_rotations, unskew)
+from particlesim.spatial import (SINCOS_LIMIT, frame_from_points, quaternion_to_matrix, rot_x, rot_y, rot_z,
+                                 rpy_to_matrix, sincos, skew, unit_axis_rotations, unskew)
 
 ATOL = 1e-14  # one rotation or cross product: round-off
 GRAD_EPS = 1e-6  # check_grads step (float64)
@@ -85,25 +85,28 @@ def test_rotation_gradients_fwd_and_rev():
 SINCOS_ULP = 2
 
 
-def test_sincos_matches_numpy_to_two_ulp():
+def test_sincos_matches_numpy_to_two_ulp_eager_and_jitted():
+    """Up to SINCOS_LIMIT, both compiled (where XLA may fuse multiply-adds) and op by op (where it does not)."""
     rng = np.random.default_rng(0)
-    fn = jax.jit(sincos)
-    for scale in (1e-8, 1.0, np.pi, 100.0, 1e4, 1e7):
-        x = rng.uniform(-scale, scale, 100_000)
-        x[:4] = (0.0, -0.0, np.pi / 4, -np.pi / 2)[:4]
-        s, c = (np.asarray(v) for v in fn(jnp.asarray(x)))
-        for ours, ref in ((s, np.sin(x)), (c, np.cos(x))):
-            ulp = np.spacing(np.maximum(np.abs(ref), np.finfo(float).tiny))
-            assert np.max(np.abs(ours - ref) / ulp) <= SINCOS_ULP, scale
-    s, c = fn(jnp.asarray([np.nan, np.inf, -np.inf]))
-    assert np.all(np.isnan(s)) and np.all(np.isnan(c))  # as jnp.sin / jnp.cos: no silent number
+    for fn in (jax.jit(sincos), sincos):
+        for scale in (1e-8, 1.0, np.pi, 100.0, 1e4, 1e7, SINCOS_LIMIT):
+            x = rng.uniform(-scale, scale, 20_000)
+            x[:6] = (0.0, -0.0, np.pi / 4, -np.pi / 2, np.pi, 100 * np.pi)
+            s, c = (np.asarray(v) for v in fn(jnp.asarray(x)))
+            for ours, ref in ((s, np.sin(x)), (c, np.cos(x))):
+                ulp = np.spacing(np.maximum(np.abs(ref), np.finfo(float).tiny))
+                assert np.max(np.abs(ours - ref) / ulp) <= SINCOS_ULP, scale
+        s, c = fn(jnp.asarray([-0.0]))
+        assert np.signbit(s[0]) and float(c[0]) == 1.0  # sin(-0) = -0
+        s, c = fn(jnp.asarray([np.nan, np.inf, -np.inf, 1.001 * SINCOS_LIMIT, -1e20]))
+        assert np.all(np.isnan(s)) and np.all(np.isnan(c))  # no unbounded or silent numbers
     s, c = sincos(jnp.asarray([0.5], dtype=jnp.float32))  # other types keep XLA's own
     assert s.dtype == jnp.float32 and abs(float(s[0]) - np.sin(0.5)) < 1e-6
 
 
 def test_sincos_derivatives_are_cos_and_minus_sin():
     x = jnp.asarray(np.random.default_rng(1).uniform(-10.0, 10.0, 7))
-    check_grads(lambda x: sincos(x), (x,), order=2, modes=("fwd", "rev"), eps=GRAD_EPS)
-    ds, dc = jax.jacfwd(lambda x: sincos(x))(x)
+    check_grads(sincos, (x,), order=2, modes=("fwd", "rev"), eps=GRAD_EPS)
+    ds, dc = jax.jacfwd(sincos)(x)
     np.testing.assert_allclose(np.diag(ds), np.cos(np.asarray(x)), rtol=0, atol=ATOL)
     np.testing.assert_allclose(np.diag(dc), -np.sin(np.asarray(x)), rtol=0, atol=ATOL)

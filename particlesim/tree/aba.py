@@ -37,8 +37,7 @@ from ..spatial import sincos
 from .model import PRISMATIC, REVOLUTE, TreeModel
 
 __all__ = ["UNROLL_LINKS", "ONE_STATE_SWEEPS_DEPTH", "BATCH_CHUNK", "BATCH_CHUNK_ABOVE", "batch_chunks",
-           "batch_lanes", "supports_aba",
-           "one_state_sweeps", "aba", "aba_one_state"]
+           "batch_lanes", "supports_aba", "one_state_sweeps", "aba", "aba_one_state"]
 
 
 @functools.lru_cache(maxsize=64)
@@ -89,27 +88,25 @@ UNROLL_LINKS = 32
 #: of about 1024, 6.3-6.5 us at every size). Smaller batches cost more per state (6.2-7.6 us from 72 to 520 states,
 #: 11 us at 40, once padded off multiples of 64 lanes: :func:`batch_lanes`).
 BATCH_CHUNK = 1024
-#: Batches up to this size run whole (their chunks would fall below 700 states).
+#: Batches up to this size run whole (their chunks would fall to about 700 states).
 BATCH_CHUNK_ABOVE = 1408
 
 
 def batch_chunks(size: int) -> int:
     """How many chunks a batch of ``size`` states is evaluated in: 1 up to :data:`BATCH_CHUNK_ABOVE`, else the
-    nearest whole number of :data:`BATCH_CHUNK` chunks (at least two; chunks of 705 to about 1370 states)."""
+    nearest whole number of :data:`BATCH_CHUNK` chunks (at least two; chunks of 705 to 1280 states)."""
     if size <= BATCH_CHUNK_ABOVE:
         return 1
     return max(2, round(size / BATCH_CHUNK))
 
 
 def batch_lanes(per: int) -> int:
-    """How many states a chunk of ``per`` states is evaluated with (the extra ones padding): ``per`` rounded up to a
-    multiple of 8, plus 8 more if that is a multiple of 64 below 768. Rows of a multiple of 64 float64 lanes (512
-    bytes) put the rows of a link's 6 x 6 inertias at addresses that share cache sets: Krang on one core, per state,
-    32 / 64 / 128 / 256 / 512 states 14.4 / 9.3 / 8.8 / 10.2 / 11.2 us against 11.3 / 7.6 / 6.8 / 6.2 / 7.4 us for
-    40 / 72 / 136 / 264 / 520 (more states in less time per call); 768 and 1024 states are not affected (6.1 and
-    5.9 us, the same padded)."""
-    lanes = -(-per // 8) * 8
-    return lanes + 8 if lanes % 64 == 0 and lanes < 768 else lanes
+    """How many states a chunk of ``per`` states is evaluated with (the extra ones padding): ``per``, plus 8 if it is
+    a multiple of 64 below 768. Rows of a multiple of 64 float64 lanes (512 bytes) put the rows of a link's 6 x 6
+    inertias at addresses that share cache sets: Krang on one core, per state, 64 / 128 / 192 / 256 / 384 / 512 states
+    9.3 / 8.8 / 8.4 / 10.2 / 7.9 / 11.2 us against 7.6 / 6.8 / 7.3 / 6.2 / 6.7 / 7.4 us with 8 more (more states in
+    less time per call); 768 and 1024 states are not affected (6.1 and 5.9 us, the same with 8 more)."""
+    return per + 8 if per > 0 and per % 64 == 0 and per < 768 else per
 
 
 #: One state of a tree up to :data:`UNROLL_LINKS` links takes the sweeps rather than composite inertias and a Cholesky

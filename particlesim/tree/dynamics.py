@@ -299,7 +299,9 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
 def _batched(model: TreeModel, q, qd, tau, smooth_friction):
     """A batch, compiled once per model structure and batch shape (hundreds of small operations would otherwise
     be dispatched one by one when called outside ``jit``), with XLA's reductions on its YNNPACK kernels
-    (:data:`particlesim._xla.BATCH_OPTIONS`: the sweeps' reductions run over the trailing batch axis)."""
+    (:data:`particlesim._xla.BATCH_OPTIONS`: the sweeps' reductions run over the trailing batch axis). Large batches
+    run in chunks (:func:`~.aba.batch_chunks`), sizes that are multiples of 64 with 8 padding states
+    (:func:`~.aba.batch_lanes`)."""
     if not supports_aba(model):
         per_state = functools.partial(_forward_dynamics, model, smooth_friction=smooth_friction)
         return jnp.vectorize(per_state, signature="(a),(b),(b)->(b)")(q, qd, tau)
@@ -312,7 +314,7 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction):
     size = q.shape[0]
     k = batch_chunks(size)
     lanes = batch_lanes(-(-size // k))
-    if k * lanes == size:
+    if size == 0 or (k == 1 and lanes == size):
         return aba(model, q.T, qd.T, rhs.T).T.reshape(batch + (n,))
     # padded at the end with copies of the last state (cut off below), then k chunks of `lanes` states
     chunked = tuple(jnp.pad(x, ((0, k * lanes - size), (0, 0)), mode="edge").reshape(k, lanes, -1).transpose(0, 2, 1)

@@ -157,7 +157,7 @@ def test_batches_padded_off_multiples_of_64_lanes(small_tree):
     state."""
     from particlesim.tree.aba import batch_lanes
 
-    assert [batch_lanes(p) for p in (3, 40, 64, 512, 520, 768, 1024)] == [8, 40, 72, 520, 520, 768, 1024]
+    assert [batch_lanes(p) for p in (0, 3, 40, 64, 512, 520, 768, 1024)] == [0, 3, 40, 72, 520, 520, 768, 1024]
     rng = np.random.default_rng(14)
     q, qd, tau = (rng.normal(size=(64, small_tree.nq)) for _ in range(3))
     out = forward_dynamics(small_tree, q, qd, tau)
@@ -166,16 +166,16 @@ def test_batches_padded_off_multiples_of_64_lanes(small_tree):
 
 
 def test_chunked_batches_differentiate(tiny_tree, monkeypatch):
-    """The chunked layout (here 3 chunks of 8 lanes for 10 states, chunk sizes made small) against finite
-    differences, forward and reverse mode."""
+    """The chunked layout (here 3 chunks of 8 for 22 states, the last one padded; chunk sizes made small) against
+    state by state and finite differences, forward and reverse mode."""
     from particlesim.tree import aba as aba_module, dynamics
 
     monkeypatch.setattr(aba_module, "BATCH_CHUNK_ABOVE", 4)
-    monkeypatch.setattr(aba_module, "BATCH_CHUNK", 3)
-    assert aba_module.batch_chunks(10) == 3
+    monkeypatch.setattr(aba_module, "BATCH_CHUNK", 8)
+    assert aba_module.batch_chunks(22) == 3
     model = tiny_tree
     rng = np.random.default_rng(13)
-    q, qd, tau = (jnp.asarray(rng.normal(size=(10, model.nq))) for _ in range(3))
+    q, qd, tau = (jnp.asarray(rng.normal(size=(22, model.nq))) for _ in range(3))
 
     def f(q, qd, tau, inertia):
         m = eqx.tree_at(lambda m: m.inertia, model, inertia)
@@ -185,6 +185,27 @@ def test_chunked_batches_differentiate(tiny_tree, monkeypatch):
     ref = jax.jit(jax.vmap(lambda a, b, c: forward_dynamics(model, a, b, c, smooth_friction=0.1)))(q, qd, tau)
     assert max_rel(fn(q, qd, tau, model.inertia), ref) <= SAME_RTOL
     check_grads(fn, (q, qd, tau, model.inertia), order=1, modes=("fwd", "rev"))
+
+
+def test_batches_evenly_divided_still_run_in_chunks(tiny_tree, monkeypatch):
+    """The sweeps see chunks, not the whole batch, also when the batch divides evenly (16 states in 2 chunks of 8;
+    chunk sizes made small), and an empty batch passes through."""
+    from particlesim.tree import aba as aba_module, dynamics
+
+    monkeypatch.setattr(aba_module, "BATCH_CHUNK_ABOVE", 4)
+    monkeypatch.setattr(aba_module, "BATCH_CHUNK", 8)
+    widths = []
+
+    def spy(model, q, qd, tau):
+        widths.append(q.shape[1])
+        return aba_module.aba(model, q, qd, tau)
+
+    monkeypatch.setattr(dynamics, "aba", spy)
+    x = jnp.zeros((16, tiny_tree.nq))
+    jax.make_jaxpr(lambda x: dynamics._batched.raw(tiny_tree, x, x, x, None))(x)
+    assert widths == [8]
+    empty = np.zeros((0, tiny_tree.nq))
+    assert forward_dynamics(tiny_tree, empty, empty, empty).shape == (0, tiny_tree.nq)
 
 
 def test_a_batch_compiles_once_per_structure(small_tree):
