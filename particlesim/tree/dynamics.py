@@ -312,8 +312,8 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction):
     batch, n = q.shape[:-1], q.shape[-1]
     q, qd, rhs = (x.reshape(-1, x.shape[-1]) for x in (q, qd, rhs))  # (B, n): one batch axis
     size = q.shape[0]
-    k = batch_chunks(size)
-    lanes = batch_lanes(-(-size // k))
+    k = batch_chunks(size, model.n_joints)
+    lanes = batch_lanes(-(-size // k), model.n_joints)
     if size == 0 or (k == 1 and lanes == size):
         return aba(model, q.T, qd.T, rhs.T).T.reshape(batch + (n,))
     # padded at the end with copies of the last state (cut off below), then k chunks of `lanes` states

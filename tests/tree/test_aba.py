@@ -56,6 +56,21 @@ def test_batched_forward_dynamics_against_pinocchio(case):
     assert err <= PIN_RTOL
 
 
+def test_large_tree_batches_run_in_chunks_against_pinocchio(case):
+    """Trees that loop over links evaluate a batch in chunks of at most LOOP_CHUNK_LINK_STATES / N states (here
+    100 states of the 40-link tree: 2 chunks of 52, the last one padded)."""
+    from particlesim.tree.aba import batch_chunks
+
+    model, oracle = case
+    if model.nq <= UNROLL_LINKS:
+        pytest.skip("written-out trees chunk only past BATCH_CHUNK_ABOVE states (test below)")
+    assert batch_chunks(100, model.nq) == 2
+    rng = np.random.default_rng(15)
+    q = rng.uniform(-2.0, 2.0, (100, model.nq))
+    qd, tau = rng.normal(size=(2, 100, model.nq))
+    assert max_rel(forward_dynamics(model, q, qd, tau), _pin_aba(oracle, q, qd, tau)) <= PIN_RTOL
+
+
 def test_large_tree_single_state_against_pinocchio(case):
     """Beyond UNROLL_LINKS a single state goes through the O(N) sweeps too."""
     model, oracle = case
