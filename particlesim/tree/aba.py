@@ -94,8 +94,8 @@ BATCH_CHUNK_ABOVE = 1408
 
 
 #: Trees beyond :data:`UNROLL_LINKS` links loop over links with stacked buffers of every link's row for the whole
-#: chunk (about 1 kB per link and state); their chunks hold at most this many link-states (and 8 to
-#: :data:`LOOP_CHUNK_MAX` states). Chains of 50 / 100 / 200 links, batch of 264 states, one core, per state: whole
+#: chunk (about 1 kB per link and state); their chunks hold at most about this many link-states (and 8 to
+#: :data:`LOOP_CHUNK_MAX` states, a multiple of 4). Chains of 50 / 100 / 200 links, batch of 264 states, one core, per state: whole
 #: 23 / 121-129 / 266 us; in chunks of 88 13 / 27 us, of 44 at 200 links 68 us (66 states: 16 / 31 / 88 us; 132:
 #: 23 / 42 / 214 us; `abaInParallel` 16 / 33 / 65 us).
 LOOP_CHUNK_LINK_STATES = 8800
@@ -106,9 +106,10 @@ def batch_chunks(size: int, n_links: int = 0) -> int:
     """How many chunks a batch of ``size`` states is evaluated in. Trees up to :data:`UNROLL_LINKS` links: 1 up to
     :data:`BATCH_CHUNK_ABOVE` states, else the nearest whole number of :data:`BATCH_CHUNK` chunks (at least two;
     chunks of 705 to 1280 states). Larger trees (``n_links`` above :data:`UNROLL_LINKS`): chunks of at most
-    :data:`LOOP_CHUNK_LINK_STATES` / ``n_links`` states (8 to :data:`LOOP_CHUNK_MAX`)."""
+    :data:`LOOP_CHUNK_LINK_STATES` / ``n_links`` states rounded down to a multiple of 4 (8 to
+    :data:`LOOP_CHUNK_MAX`)."""
     if n_links > UNROLL_LINKS:
-        per = min(LOOP_CHUNK_MAX, max(8, LOOP_CHUNK_LINK_STATES // n_links))
+        per = min(LOOP_CHUNK_MAX, max(8, LOOP_CHUNK_LINK_STATES // n_links // 4 * 4))
         return max(1, -(-size // per))
     if size <= BATCH_CHUNK_ABOVE:
         return 1
@@ -121,11 +122,11 @@ def batch_lanes(per: int, n_links: int = 0) -> int:
     inertias at addresses that share cache sets: Krang on one core, per state, 64 / 128 / 192 / 256 / 384 / 512 states
     9.3 / 8.8 / 8.4 / 10.2 / 7.9 / 11.2 us against 7.6 / 6.8 / 7.3 / 6.2 / 6.7 / 7.4 us with 8 more (more states in
     less time per call); 768 and 1024 states are not affected (6.1 and 5.9 us, the same with 8 more). Trees beyond
-    :data:`UNROLL_LINKS` links first round ``per`` up to a multiple of 4 (256 states, one core, per state: a 100-link
-    chain in 3 chunks 70-74 us with 86 states per chunk, 30 us with 88; a 200-link chain in 6 chunks 81 us with 48
-    states, 64 us with 44)."""
+    :data:`UNROLL_LINKS` links (chunks of at most 88) instead round ``per`` from 8 states up to a multiple of 4 (256
+    states, one core, per state: a 100-link chain in 3 chunks 70-74 us with 86 states per chunk, 30 us with 88; a
+    200-link chain in 6 chunks 81 us with 48 states, 64 us with 44); the multiple-of-64 rule was not measured there."""
     if n_links > UNROLL_LINKS:
-        per = -(-per // 4) * 4
+        return per if per < 8 else -(-per // 4) * 4
     return per + 8 if per > 0 and per % 64 == 0 and per < 768 else per
 
 

@@ -299,9 +299,9 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
 def _batched(model: TreeModel, q, qd, tau, smooth_friction):
     """A batch, compiled once per model structure and batch shape (hundreds of small operations would otherwise
     be dispatched one by one when called outside ``jit``), with XLA's reductions on its YNNPACK kernels
-    (:data:`particlesim._xla.BATCH_OPTIONS`: the sweeps' reductions run over the trailing batch axis). Large batches
-    run in chunks (:func:`~.aba.batch_chunks`), sizes that are multiples of 64 with 8 padding states
-    (:func:`~.aba.batch_lanes`)."""
+    (:data:`particlesim._xla.BATCH_OPTIONS`: the sweeps' reductions run over the trailing batch axis). Batches run in
+    chunks (:func:`~.aba.batch_chunks`: past 1408 states up to 32 links, past about 8800 / N states beyond), padded
+    as :func:`~.aba.batch_lanes` says (multiples of 64 lanes avoided; a multiple of 4 per chunk beyond 32 links)."""
     if not supports_aba(model):
         per_state = functools.partial(_forward_dynamics, model, smooth_friction=smooth_friction)
         return jnp.vectorize(per_state, signature="(a),(b),(b)->(b)")(q, qd, tau)

@@ -59,16 +59,27 @@ def test_batched_forward_dynamics_against_pinocchio(case):
 def test_large_tree_batches_run_in_chunks_against_pinocchio(case):
     """Trees that loop over links evaluate a batch in chunks of at most LOOP_CHUNK_LINK_STATES / N states (here
     100 states of the 40-link tree: 2 chunks of 52, the last one padded)."""
-    from particlesim.tree.aba import batch_chunks
+    from particlesim.tree import aba as aba_module, dynamics
 
     model, oracle = case
-    if model.nq <= UNROLL_LINKS:
+    if model.n_joints <= UNROLL_LINKS:
         pytest.skip("written-out trees chunk only past BATCH_CHUNK_ABOVE states (test below)")
-    assert batch_chunks(100, model.nq) == 2
+    assert [aba_module.batch_chunks(s, n) for s, n in ((100, 40), (256, 200), (256, 33), (5, 5000))] == [2, 6, 3, 1]
+    assert [aba_module.batch_lanes(p, n) for p, n in ((50, 40), (86, 100), (64, 40), (5, 40))] == [52, 88, 64, 5]
     rng = np.random.default_rng(15)
-    q = rng.uniform(-2.0, 2.0, (100, model.nq))
-    qd, tau = rng.normal(size=(2, 100, model.nq))
+    q = rng.uniform(-2.0, 2.0, (100, model.n_joints))
+    qd, tau = rng.normal(size=(2, 100, model.n_joints))
     assert max_rel(forward_dynamics(model, q, qd, tau), _pin_aba(oracle, q, qd, tau)) <= PIN_RTOL
+    widths = []
+
+    def spy(model, q, qd, tau):
+        widths.append(q.shape[1])
+        return aba_module.aba(model, q, qd, tau)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dynamics, "aba", spy)
+        jax.make_jaxpr(lambda x: dynamics._batched.raw(model, x, x, x, None))(jnp.asarray(q))
+    assert widths == [52]  # the public batch entry chunks: 2 chunks of 52 lanes
 
 
 def test_large_tree_single_state_against_pinocchio(case):
