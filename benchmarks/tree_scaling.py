@@ -7,7 +7,8 @@ libraries. Ours: ``forward_dynamics`` jitted for one state (composite inertias a
 beyond and for deep trees: chains of 16 links or more), timed per call
 from Python and per evaluation inside a compiled scan (no dispatch); and for a batch of states passed directly
 (articulated-body sweeps with the batch innermost). Pinocchio: ``pin.aba`` per call from Python, and its batched C++
-``abaInParallel`` on 1 thread. Compile times are ``jit(...).lower(...).compile()``; run times least of repeats.
+``abaInParallel`` on 1 thread, the whole process pinned to one core. Compile times are
+``jit(...).lower(...).compile()``; run times least of repeats.
 Run: ``python -m benchmarks.tree_scaling``.
 """
 
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import time
 
 import particlesim  # noqa: F401  (float64)
@@ -132,13 +134,25 @@ def _slope(rows, key):
     return float(np.polyfit(x, y, 1)[0])
 
 
+def _pin_to_one_core() -> list[int]:
+    """Every thread of this process (and so every thread it starts later: XLA's pool included) on one core, so that
+    ours and ``abaInParallel`` on 1 thread compare at equal cores (unpinned, XLA runs independent kernels of our
+    batch on a second core: 50 / 100 / 200 links 14.9 / 24.2 / 58.2 us per state unpinned against 20.9 / 31.4 /
+    76.8 pinned in a side test)."""
+    core = min(os.sched_getaffinity(0))
+    for tid in os.listdir("/proc/self/task"):
+        os.sched_setaffinity(int(tid), {core})
+    return sorted(os.sched_getaffinity(0))
+
+
 def run() -> dict:
+    cores = _pin_to_one_core()
     t0 = time.perf_counter()
     rows = [run_size(n) for n in SIZES]
     slopes = {k: _slope(rows, k) for k in ("single_call_us", "in_scan_us", "batch_per_state_us", "pin_aba_call_us",
                                            "pin_parallel_1thread_us", "compile_single_s")}
     return {"benchmark": NAME, "environment": environment(), "rows": rows, "slopes": slopes, "batch": BATCH,
-            "wall_s": time.perf_counter() - t0}
+            "wall_s": time.perf_counter() - t0, "cores": cores}
 
 
 def write(results: dict) -> None:
@@ -183,7 +197,9 @@ def markdown(results: dict) -> str:
              f"{env['cpu']}, {env['cpu_count']} cores, {env['date']}; took {results['wall_s'] / 60:.1f} min. "
              f"Ours one state: articulated-body sweeps beyond {UNROLL_LINKS} links and for trees of mean link depth above "
              f"{ONE_STATE_SWEEPS_DEPTH:g} (chains of 16 links or more), composite inertias + Cholesky otherwise; "
-             f"batch of {results['batch']} passed directly (articulated-body sweeps, batch innermost, one thread).", "",
+             f"batch of {results['batch']} passed directly (articulated-body sweeps, batch innermost). "
+             f"{'Process pinned to one core: ' if results.get('cores') and len(results['cores']) == 1 else ''}"
+             "ours and abaInParallel at equal cores.", "",
              "| N | compile one / scan / batch | one call | in scan | batch, per state | Pinocchio aba | "
              "abaInParallel 1 thread | error vs Pinocchio |",
              "|---:|---:|---:|---:|---:|---:|---:|---:|"]

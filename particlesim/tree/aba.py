@@ -95,9 +95,9 @@ BATCH_CHUNK_ABOVE = 1408
 
 #: Trees beyond :data:`UNROLL_LINKS` links loop over links with stacked buffers of every link's row for the whole
 #: chunk (about 1 kB per link and state); their chunks hold at most about this many link-states (and 8 to
-#: :data:`LOOP_CHUNK_MAX` states, a multiple of 4). Chains of 50 / 100 / 200 links, batch of 264 states, one core, per state: whole
-#: 23 / 121-129 / 266 us; in chunks of 88 13 / 27 us, of 44 at 200 links 68 us (66 states: 16 / 31 / 88 us; 132:
-#: 23 / 42 / 214 us; `abaInParallel` 16 / 33 / 65 us).
+#: :data:`LOOP_CHUNK_MAX` states, a multiple of 4). Chains of 50 / 100 / 200 links, batch of 264 states, one core,
+#: per state: whole 23 / 121-129 / 266 us; in chunks of 88 13 / 27 us, of 44 at 200 links 68 us (66 states: 16 / 31
+#: / 88 us; 132: 23 / 42 / 214 us; `abaInParallel` 16 / 31-33 / 62-65 us).
 LOOP_CHUNK_LINK_STATES = 8800
 LOOP_CHUNK_MAX = 88
 
