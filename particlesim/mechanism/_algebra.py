@@ -222,10 +222,21 @@ class Rows(eqx.Module):
     ddu: Float[Array, "K 3"] | None = None
 
 
+#: Up to this many free particles, :func:`_mm` is an unrolled sum of outer products; beyond, a matrix product.
+MM_UNROLL = 16
+
+
 def _mm(a: Array, b: Array) -> Array:
-    """``a @ b`` for small ``b`` (F, 3) as a broadcast product summed over F: one fused loop, where a dot thunk
-    costs more than the arithmetic at these sizes."""
-    return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
+    """``a @ b`` for ``b`` (F, 3). Up to :data:`MM_UNROLL` particles a sum of F outer products, unrolled, which XLA
+    fuses into one loop reading ``a`` and ``b`` once (a dot call costs more than the arithmetic at these sizes);
+    a matrix product beyond. Not the broadcast product ``a[:, :, None] * b[None]`` summed over F: under ``vmap``
+    over parameter sets (``a`` batched) XLA hoists its broadcast out of the integrator's loop as a (B, 2D, F, 3)
+    array that every evaluation then reads from memory (vmapped quarter cars cost twice as much per member as
+    one at a time)."""
+    f = a.shape[1]
+    if f == 0 or f > MM_UNROLL:
+        return a @ b
+    return sum(a[:, k, None] * b[k][None, :] for k in range(f))
 
 
 def rows(prep: Prepared, q: Float[Array, " 3F"], qd=None, drive: Drive | None = None) -> Rows:
@@ -318,8 +329,8 @@ def apply_minv_jt(prep: Prepared, r: Rows, lam: Float[Array, " C"]) -> Float[Arr
     n = prep.scale.shape[0]
     ls = jnp.tile(lam[:n] * prep.scale, 2)[:, None] * _partner(r.vu, prep.turn)
     nl = prep.c_lin.shape[0]
-    out = jnp.sum(prep.dw[:, :, None] * ls[:, None, :], axis=0) + jnp.sum(prep.jw_lin * lam[n:n + nl, None, None],
-                                                                          axis=0)
+    # A matrix product rather than a broadcast product summed over rows: see _mm (the same hoisted broadcast).
+    out = prep.dw.T @ ls + jnp.sum(prep.jw_lin * lam[n:n + nl, None, None], axis=0)
     if r.drive is None:
         return out
     return out + prep.drv_dw.T @ (lam[n + nl:, None] * r.drive.n)

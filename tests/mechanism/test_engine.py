@@ -10,6 +10,7 @@ saddle-point fallback (for singular mass matrices) agrees with both.
 import dataclasses
 
 import jax
+import jax.extend.core
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -31,6 +32,8 @@ def _slider_crank():
 
 SCENES = {
     "revolute chain": lambda: chain_mechanism(chain_geometry(3, "revolute", seed=3)),
+    # 18 free particles: beyond MM_UNROLL, the rows' products are matrix products
+    "revolute chain, 9 links": lambda: chain_mechanism(chain_geometry(9, "revolute", seed=3)),
     "spherical chain": lambda: chain_mechanism(chain_geometry(3, "spherical", seed=3)),
     "quarter car": quarter_car,
     "Nikravesh AA": aa_mechanism,
@@ -87,3 +90,34 @@ def test_projection_reaches_round_off_from_a_step_sized_error(name):
     pos, vel = residuals(mech, xp, xdp)
     assert float(jnp.abs(pos).max()) <= POS_ATOL
     assert float(jnp.abs(vel).max()) <= VEL_RTOL * max(float(jnp.abs(xd).max()), 1.0)
+
+
+def _avals(jaxpr):
+    """Shapes of every intermediate of a (closed) jaxpr, nested jaxprs (jit, scan, cond...) included."""
+    jaxpr = getattr(jaxpr, "jaxpr", jaxpr)
+    for eqn in jaxpr.eqns:
+        for v in eqn.outvars:
+            yield tuple(getattr(v.aval, "shape", ()))
+        for param in eqn.params.values():
+            for sub in (param if isinstance(param, (tuple, list)) else (param,)):
+                if isinstance(sub, (jax.extend.core.ClosedJaxpr, jax.extend.core.Jaxpr)):
+                    yield from _avals(sub)
+
+
+def test_vmapped_engine_forms_no_row_by_particle_broadcasts():
+    """Vmapped over parameter sets, the field and the projection form no (B, 2D, F, 3) broadcast product of the
+    rows' constant matrix with the particles (XLA hoists such a broadcast out of an integrator's loop and reads
+    it from memory at every evaluation: vmapped quarter cars cost twice as much per member as one at a time)."""
+    from particlesim.batch import stack
+    from particlesim.mechanism import accelerations
+    from particlesim.mechanism._algebra import MM_UNROLL
+
+    mech, x0 = quarter_car()
+    f, two_d = x0.shape[0] // 3, 2 * len(mech.topo.dot.a)
+    assert f <= MM_UNROLL
+    mechs = stack([mech.with_params(spring={"suspension": {"stiffness": k}}) for k in (2e4, 3e4, 4e4)])
+    xs = jnp.broadcast_to(jnp.asarray(x0), (3, x0.shape[0]))
+    shapes = list(_avals(jax.make_jaxpr(jax.vmap(
+        lambda m, x, xd: (accelerations(m, 0.0, x, xd), project(m, x, xd))))(mechs, xs, xs)))
+    assert any(s[-2:] == (two_d, 3) for s in shapes)  # the rows' vectors are there (the walk sees the engine)
+    assert not [s for s in shapes if s[-3:] == (two_d, f, 3)]
