@@ -429,9 +429,13 @@ def rerun_batch() -> dict:
 def rerun_chain_steps() -> dict:
     """Redo only the chain-step part of the saved results (``python -m benchmarks.mechanism_engine chains``)."""
     res = json.loads((RESULTS / f"{NAME}.json").read_text())
+    before = environment()
     res["chain_steps"] = chain_steps()
     ch = [r for r in res["chain_steps"] if r["solve"] == "chain"]
     res["step_slope_chain"] = _slope([r["n"] for r in ch], [r["per_step_s"] for r in ch])
+    env = environment()
+    res["chain_steps_rerun"] = {"date": env["date"], "load_before": before["load_average_1_5_15min"][0],
+                                "load": env["load_average_1_5_15min"][0]}
     return res
 
 

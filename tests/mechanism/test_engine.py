@@ -107,7 +107,8 @@ def _avals(jaxpr):
 def test_vmapped_engine_forms_no_row_by_particle_broadcasts():
     """Vmapped over parameter sets, the field and the projection form no (B, 2D, F, 3) broadcast product of the
     rows' constant matrix with the particles (XLA hoists such a broadcast out of an integrator's loop and reads
-    it from memory at every evaluation: vmapped quarter cars cost twice as much per member as one at a time)."""
+    it from memory at every evaluation: 8 identical quarter cars vmapped took 12.0 ms each with it, 4.8-5.1 ms
+    without)."""
     from particlesim.batch import stack
     from particlesim.mechanism import accelerations
     from particlesim.mechanism._algebra import MM_UNROLL
