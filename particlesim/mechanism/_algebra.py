@@ -239,7 +239,36 @@ def _mm(a: Array, b: Array) -> Array:
     f = a.shape[1]
     if f == 0 or f > MM_UNROLL:
         return a @ b
-    return functools.reduce(operator.add, (a[:, k, None] * b[k][None, :] for k in range(f)))
+    return _outer_sum(a, b)
+
+
+@jax.custom_jvp
+def _outer_sum(a: Array, b: Array) -> Array:
+    """``a @ b`` as the sum of the outer products of ``a``'s columns with ``b``'s rows (:func:`_mm`). Its tangent is
+    the broadcast product summed (``da @ b + a @ db`` written as before): differentiated as written, each term's
+    transpose is a padded copy of ``a``'s shape, which made the quarter car's reverse-mode gradient compile in 22 s
+    instead of 16 and run 1.2x slower; with matrix products for the tangent it ran 1.4x slower. A tangent that
+    is zero (``a`` = the rows' constant matrix, when the gradient is not taken in the geometry) is skipped."""
+    return functools.reduce(operator.add, (a[:, k, None] * b[k][None, :] for k in range(a.shape[1])))
+
+
+@functools.partial(_outer_sum.defjvp, symbolic_zeros=True)
+def _outer_sum_jvp(primals, tangents):
+    a, b = primals
+    da, db = tangents
+    out = _outer_sum(a, b)
+    terms = [t for t in ((None if _zero(da) else _broadcast_sum(da, b)), (None if _zero(db) else _broadcast_sum(a, db)))
+             if t is not None]
+    return out, (functools.reduce(operator.add, terms) if terms else jnp.zeros_like(out))
+
+
+def _broadcast_sum(a: Array, b: Array) -> Array:
+    """``a @ b`` as a broadcast product summed over the inner axis (one fused loop)."""
+    return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
+
+
+def _zero(t) -> bool:
+    return isinstance(t, jax.custom_derivatives.SymbolicZero)
 
 
 def rows(prep: Prepared, q: Float[Array, " 3F"], qd=None, drive: Drive | None = None) -> Rows:

@@ -122,3 +122,20 @@ def test_vmapped_engine_forms_no_row_by_particle_broadcasts():
         lambda m, x, xd: (accelerations(m, 0.0, x, xd), project(m, x, xd))))(mechs, xs, xs)))
     assert any(s[-2:] == (two_d, 3) for s in shapes)  # the rows' vectors are there (the walk sees the engine)
     assert not [s for s in shapes if s[-3:] == (two_d, f, 3)]
+
+
+@pytest.mark.parametrize("f", [13, 16, 17])
+def test_rows_products_equal_matrix_products_with_their_derivatives(f):
+    """The rows' products (an unrolled sum of outer products up to MM_UNROLL particles, with its own tangent; a matrix
+    product beyond) equal ``a @ b`` and differentiate like it, fwd and rev to second order, also with ``a``
+    constant (a symbolic-zero tangent)."""
+    from jax.test_util import check_grads
+
+    from particlesim.mechanism._algebra import _mm
+
+    rng = np.random.default_rng(f)
+    a, b = jnp.asarray(rng.normal(size=(66, f))), jnp.asarray(rng.normal(size=(f, 3)))
+    np.testing.assert_allclose(_mm(a, b), a @ b, rtol=0, atol=1e-13)
+    check_grads(_mm, (a, b), order=2, modes=("fwd", "rev"))
+    check_grads(lambda y: _mm(a, y), (b,), order=2, modes=("fwd", "rev"))
+    np.testing.assert_allclose(jax.jacrev(lambda y: _mm(a, y))(b), jax.jacrev(lambda y: a @ y)(b), rtol=0, atol=1e-13)
