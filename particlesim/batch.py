@@ -122,7 +122,7 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
             vectorised members step together until the slowest is done and every step carries the whole slice;
             on the 18-joint Krang a chunk of 4 ran 2.4x faster per member than a vectorised batch of 64
             (``benchmarks/batched_rollouts.py``). Particle mechanisms run fastest one member at a time
-            (``chunk=1``): on 1024 quarter cars 1.2x the throughput of chunks of 8 and 2.2x that of vmap with
+            (``chunk=1``): on 1024 quarter cars 1.2x the throughput of chunks of 8 and 2.5x that of vmap with
             Tsit5, 1.0x and 1.8x with Bosh3 (``benchmarks/mechanism_engine.py``); split the batch over host
             devices to use every core.
 
