@@ -343,7 +343,9 @@ class Mechanism(eqx.Module):
         "damping": ..., "free_length": ...}}``, ``tyre={"tyre": {"stiffness": ..., "damping": ..., "radius": ...,
         "ground": ...}}``, ``rotational={"torsion bar": {"stiffness": ..., "damping": ..., "free_angle": ...}}``,
         ``gravity=(0, 0, -9.81)``. Unknown names or fields raise ``KeyError``. Values are not
-        checked here; the simulation refuses non-finite ones."""
+        checked here; the simulation refuses non-finite ones. Each field is replaced alone: a new ``mass`` keeps
+        the body's inertia tensor about its centre of mass, so for a body that scales with its mass (a uniform rod
+        made heavier) pass ``"inertia": scale * mech.body_inertia[mech.body_index(name)]`` with it."""
         new = {}
 
         def put(field: str, i: int, value):
