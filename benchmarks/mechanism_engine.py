@@ -414,6 +414,12 @@ def markdown(res: dict) -> str:
     return "\n".join(lines)
 
 
+def _rerun_stamp(before: dict, after: dict) -> dict:
+    """Date and 1-minute load averages before and after a partial rerun (stored with its rows)."""
+    return {"date": after["date"], "load_before": before["load_average_1_5_15min"][0],
+            "load": after["load_average_1_5_15min"][0]}
+
+
 def rerun_batch() -> dict:
     """Redo only the batch part of the saved results (``python -m benchmarks.mechanism_engine batch``)."""
     res = json.loads((RESULTS / f"{NAME}.json").read_text())
@@ -421,8 +427,7 @@ def rerun_batch() -> dict:
     started = time.perf_counter()
     res["batch"] = batch()
     env = environment()
-    res["batch"]["rerun"] = {"date": env["date"], "load_before": before["load_average_1_5_15min"][0],
-                             "load": env["load_average_1_5_15min"][0], "took_s": time.perf_counter() - started}
+    res["batch"]["rerun"] = {**_rerun_stamp(before, env), "took_s": time.perf_counter() - started}
     return res
 
 
@@ -433,9 +438,7 @@ def rerun_chain_steps() -> dict:
     res["chain_steps"] = chain_steps()
     ch = [r for r in res["chain_steps"] if r["solve"] == "chain"]
     res["step_slope_chain"] = _slope([r["n"] for r in ch], [r["per_step_s"] for r in ch])
-    env = environment()
-    res["chain_steps_rerun"] = {"date": env["date"], "load_before": before["load_average_1_5_15min"][0],
-                                "load": env["load_average_1_5_15min"][0]}
+    res["chain_steps_rerun"] = _rerun_stamp(before, environment())
     return res
 
 

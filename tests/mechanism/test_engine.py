@@ -139,3 +139,4 @@ def test_rows_products_equal_matrix_products_with_their_derivatives(f):
     check_grads(_mm, (a, b), order=2, modes=("fwd", "rev"))
     check_grads(lambda y: _mm(a, y), (b,), order=2, modes=("fwd", "rev"))
     np.testing.assert_allclose(jax.jacrev(lambda y: _mm(a, y))(b), jax.jacrev(lambda y: a @ y)(b), rtol=0, atol=1e-13)
+    assert _mm(a[:, :0], b[:0]).shape == (66, 3) and not np.any(_mm(a[:, :0], b[:0]))  # no particles: zeros
