@@ -325,21 +325,35 @@ def velocity_target(prep: Prepared, r: Rows) -> Float[Array, " C"] | float:
     return jnp.concatenate([zeros, r.drive.cd - jnp.sum(r.drive.nd * r.du, axis=1)])
 
 
+#: Up to this many dot rows, :func:`schur` forms its Gram products as outer products of the three coordinates (one
+#: elementwise kernel, the row vectors behind an optimisation barrier); beyond, as the dense product ``E E^T``.
+#: Single rollouts, outer products against ``E E^T`` (medians of 25, one process per variant, interleaved):
+#: Nikravesh AA (5 rows) 3.07 -> 2.77 ms, 3-link spherical chain (18) 6.08 -> 5.26, 4-link revolute (20) 2.20 ->
+#: 1.99, 6-link (30) 5.46 -> 4.76; beyond, the quarter car (33 rows) 16.3 -> 15.9 and an 8-link chain (40) 9.51 ->
+#: 8.39, but the quarter car's reverse-mode gradient then cost 5.4-5.7x its rollout against 5.0x (also with a
+#: custom derivative rule written with ``E E^T``: 5.4x), so larger mechanisms keep ``E E^T``.
+GRAM_OUTER_MAX_ROWS = 32
+
+
 def schur(prep: Prepared, r: Rows) -> Float[Array, "C C"]:
     """``S = J M^-1 J^T`` from the Gram matrix of ``E`` and the constant ``A`` (module docstring)."""
     n = prep.scale.shape[0]
-    # h[r, q] = sum_{i,j} A[(i, r), (j, q)] E[(i, r)] . E[(j, q)], written as outer products of the three
-    # coordinates: one elementwise kernel. E passes an optimisation barrier first: without it XLA fuses the rows'
-    # products (:func:`_mm`, which E is made of) into this kernel and recomputes them for every entry (a quarter
-    # car's rollout 16 -> 55 ms), which is why a dense product E E^T had been faster here. Single rollouts with
-    # the barrier against E E^T (medians of 25, one process each, interleaved): 4-link revolute chain 2.20 -> 1.99 ms,
-    # 3-link spherical 6.08 -> 5.26, 8-link revolute 9.51 -> 8.39, Nikravesh AA 3.07 -> 2.77, quarter car 16.3 ->
-    # 15.9; 64 quarter cars vectorised 70 -> 81 rollouts/s, in chunks of 8 81 -> 97/s, one at a time 145 -> 152/s.
-    e = jax.lax.optimization_barrier(_partner(r.vu, prep.turn))
-    eb = (e[:n], e[n:])
+    e = _partner(r.vu, prep.turn)
     ab = prep.a.reshape(2, n, 2, n)
-    h = sum(ab[i, :, j, :] * sum(eb[i][:, k, None] * eb[j][None, :, k] for k in range(3))
-            for i in range(2) for j in range(2))
+    # h[r, q] = sum_{i,j} A[(i, r), (j, q)] E[(i, r)] . E[(j, q)]
+    if n <= GRAM_OUTER_MAX_ROWS:
+        # Outer products of the three coordinates, one elementwise kernel, E behind an optimisation barrier:
+        # without it XLA fuses the rows' products (_mm, which E is made of) into this kernel and recomputes them
+        # for every entry (a quarter car's rollout 16 -> 55 ms).
+        e = jax.lax.optimization_barrier(e)
+        eb = (e[:n], e[n:])
+        terms = [ab[i, :, j, :] * functools.reduce(operator.add, (eb[i][:, k, None] * eb[j][None, :, k]
+                                                                 for k in range(3)))
+                 for i in range(2) for j in range(2)]
+    else:  # the Gram matrix of E as one small dense product
+        g = (e @ e.T).reshape(2, n, 2, n)
+        terms = [ab[i, :, j, :] * g[i, :, j, :] for i in range(2) for j in range(2)]
+    h = functools.reduce(operator.add, terms)
     s_dd = prep.scale[:, None] * prep.scale[None, :] * h
     if prep.c_lin.shape[0] == 0:
         s = s_dd

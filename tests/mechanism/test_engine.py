@@ -140,3 +140,28 @@ def test_rows_products_equal_matrix_products_with_their_derivatives(f):
     check_grads(lambda y: _mm(a, y), (b,), order=2, modes=("fwd", "rev"))
     np.testing.assert_allclose(jax.jacrev(lambda y: _mm(a, y))(b), jax.jacrev(lambda y: a @ y)(b), rtol=0, atol=1e-13)
     assert _mm(a[:, :0], b[:0]).shape == (66, 3) and not np.any(_mm(a[:, :0], b[:0]))  # no particles: zeros
+
+
+
+@pytest.mark.parametrize("scene", ["quarter car", "4-link chain"])
+def test_schur_outer_and_gram_forms_agree_with_derivatives(scene, monkeypatch):
+    """The Schur complement's two forms of its Gram products (outer products of the coordinates up to
+    GRAM_OUTER_MAX_ROWS dot rows, ``E E^T`` beyond) agree at a displaced state, and the outer form differentiates
+    (fwd and rev) in the positions."""
+    from jax.test_util import check_grads
+
+    from particlesim.mechanism import _algebra
+
+    mech, x0 = quarter_car() if scene == "quarter car" else chain_mechanism(chain_geometry(4, "revolute", seed=4))
+    prep = _algebra.prepare(mech)
+    q = jnp.asarray(x0) + 1e-2 * jnp.asarray(np.random.default_rng(0).normal(size=len(x0)))
+
+    def s_of(q):
+        return _algebra.schur(prep, _algebra.rows(prep, q))
+
+    monkeypatch.setattr(_algebra, "GRAM_OUTER_MAX_ROWS", 10**6)
+    outer = s_of(q)
+    check_grads(s_of, (q,), order=1, modes=("fwd", "rev"))
+    monkeypatch.setattr(_algebra, "GRAM_OUTER_MAX_ROWS", -1)
+    gram = s_of(q)
+    np.testing.assert_allclose(outer, gram, rtol=0, atol=1e-12 * float(jnp.abs(gram).max()))
