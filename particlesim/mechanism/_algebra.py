@@ -10,7 +10,8 @@ half of ``D``) the Schur complement ``S = J M^-1 J^T`` of the dot rows is
 
     S[r, q] = s_r s_q sum_{i, j in (v, u)} A[(i, r), (j, q)] (E[(i, r)] . E[(j, q)]),     A = D M_s^-1 D^T
 
-so per evaluation it costs one Gram product ``E E^T`` and one elementwise combination with the constant ``A``;
+so per evaluation it costs one Gram product ``E E^T`` (elementwise outer products in small mechanisms,
+:data:`GRAM_OUTER_MAX_ROWS`) and one elementwise combination with the constant ``A``;
 ``J Y`` and ``M^-1 J^T lam`` likewise reduce to ``D Y`` and ``(D M_s^-1)^T`` times row-scaled ``E``. Linear rows
 (cut joints) have a constant Jacobian, so their blocks of ``S`` are constants or (with the dot rows) one
 contraction with a constant tensor. Driving rows ``n(t) . (p_a - p_b) - c(t)`` (:class:`~.model.DriveRows`) are
