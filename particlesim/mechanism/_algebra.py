@@ -328,11 +328,12 @@ def velocity_target(prep: Prepared, r: Rows) -> Float[Array, " C"] | float:
 
 #: Up to this many dot rows, :func:`schur` forms its Gram products as outer products of the three coordinates (one
 #: elementwise kernel, the row vectors behind an optimisation barrier); beyond, as the dense product ``E E^T``.
-#: Single rollouts, outer products against ``E E^T`` (medians of 25, one process per variant, interleaved):
-#: Nikravesh AA (5 rows) 3.07 -> 2.77 ms, 3-link spherical chain (18) 6.08 -> 5.26, 4-link revolute (20) 2.20 ->
-#: 1.99, 6-link (30) 5.46 -> 4.76; beyond, the quarter car (33 rows) 16.3 -> 15.9 and an 8-link chain (40) 9.51 ->
-#: 8.39, but the quarter car's reverse-mode gradient then cost 5.4-5.7x its rollout against 5.0x (also with a
-#: custom derivative rule written with ``E E^T``: 5.4x), so larger mechanisms keep ``E E^T``.
+#: Single rollouts, this rule against ``E E^T`` everywhere (medians of 25, one process per variant, interleaved):
+#: Nikravesh AA (5 rows) 3.07 -> 2.71 ms, 3-link spherical chain (18) 6.08 -> 5.19, 4-link revolute (20) 2.20 ->
+#: 2.04, 6-link (30) 5.46 -> 4.71. The bound is set by one measurement, the quarter car's gradient: with outer
+#: products the quarter car (33 rows) ran 16.3 -> 15.9 ms and an 8-link chain (40) 9.51 -> 8.39 ms, but the quarter
+#: car's reverse-mode gradient cost 5.4-5.7x its rollout against 5.0x (also with a custom derivative rule written
+#: with ``E E^T``: 5.4x). Sizes between 30 and 33 rows, and other gradients, were not measured.
 GRAM_OUTER_MAX_ROWS = 32
 
 
@@ -345,7 +346,8 @@ def schur(prep: Prepared, r: Rows) -> Float[Array, "C C"]:
     if n <= GRAM_OUTER_MAX_ROWS:
         # Outer products of the three coordinates, one elementwise kernel, E behind an optimisation barrier:
         # without it XLA fuses the rows' products (_mm, which E is made of) into this kernel and recomputes them
-        # for every entry (a quarter car's rollout 16 -> 55 ms).
+        # for every entry (this form without the barrier: a 6-link chain's rollout 7.3 ms against 5.4 with E E^T
+        # and 4.7 with the barrier; at every size, a quarter car's 55 ms against 16).
         e = jax.lax.optimization_barrier(e)
         eb = (e[:n], e[n:])
         terms = [ab[i, :, j, :] * functools.reduce(operator.add, (eb[i][:, k, None] * eb[j][None, :, k]

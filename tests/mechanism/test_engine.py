@@ -142,7 +142,6 @@ def test_rows_products_equal_matrix_products_with_their_derivatives(f):
     assert _mm(a[:, :0], b[:0]).shape == (66, 3) and not np.any(_mm(a[:, :0], b[:0]))  # no particles: zeros
 
 
-
 @pytest.mark.parametrize("scene", ["quarter car", "4-link chain"])
 def test_schur_outer_and_gram_forms_agree_with_derivatives(scene, monkeypatch):
     """The Schur complement's two forms of its Gram products (outer products of the coordinates up to
@@ -159,9 +158,14 @@ def test_schur_outer_and_gram_forms_agree_with_derivatives(scene, monkeypatch):
     def s_of(q):
         return _algebra.schur(prep, _algebra.rows(prep, q))
 
+    def barrier():  # the elementwise form is the one behind an optimisation barrier (a new function each time:
+        return "optimization_barrier" in str(jax.make_jaxpr(lambda y: s_of(y))(q))  # make_jaxpr caches by function)
+
     monkeypatch.setattr(_algebra, "GRAM_OUTER_MAX_ROWS", 10**6)
+    assert barrier()
     outer = s_of(q)
     check_grads(s_of, (q,), order=1, modes=("fwd", "rev"))
     monkeypatch.setattr(_algebra, "GRAM_OUTER_MAX_ROWS", -1)
+    assert not barrier()
     gram = s_of(q)
-    np.testing.assert_allclose(outer, gram, rtol=0, atol=1e-12 * float(jnp.abs(gram).max()))
+    np.testing.assert_allclose(outer, gram, rtol=0, atol=1e-13 * float(jnp.abs(gram).max()))
