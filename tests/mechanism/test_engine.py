@@ -145,8 +145,9 @@ def test_rows_products_equal_matrix_products_with_their_derivatives(f):
 @pytest.mark.parametrize("scene", ["quarter car", "4-link chain"])
 def test_schur_outer_and_gram_forms_agree_with_derivatives(scene, monkeypatch):
     """The Schur complement's two forms of its Gram products (outer products of the coordinates up to
-    GRAM_OUTER_MAX_ROWS dot rows, ``E E^T`` beyond) agree at a displaced state, and the outer form differentiates
-    (fwd and rev) in the positions."""
+    GRAM_OUTER_MAX_ROWS dot rows, ``E E^T`` beyond) both equal ``J M^-1 J^T`` formed from the dense Jacobian and the
+    inverse mass matrix at a displaced state, and the outer form differentiates (fwd and rev, against finite
+    differences) in the positions."""
     from jax.test_util import check_grads
 
     from particlesim.mechanism import _algebra
@@ -168,4 +169,8 @@ def test_schur_outer_and_gram_forms_agree_with_derivatives(scene, monkeypatch):
     monkeypatch.setattr(_algebra, "GRAM_OUTER_MAX_ROWS", -1)
     assert not barrier()
     gram = s_of(q)
-    np.testing.assert_allclose(outer, gram, rtol=0, atol=1e-13 * float(jnp.abs(gram).max()))
+    r = _algebra.rows(prep, q)
+    j = _algebra.jacobian(prep, r).reshape(mech.n_constraints, -1)
+    dense = j @ jnp.kron(prep.minv, jnp.eye(3)) @ j.T
+    for s in (outer, gram):
+        np.testing.assert_allclose(s, dense, rtol=0, atol=1e-12 * float(jnp.abs(dense).max()))
