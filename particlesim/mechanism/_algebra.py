@@ -39,7 +39,7 @@ from .._jit import compiled
 
 __all__ = ["Prepared", "prepare", "scalar_mass_matrix", "Rows", "rows", "schur", "apply_j", "apply_minv_jt",
            "residual", "gamma", "velocity_target", "Drive", "drive_at", "SchurFactor", "factor_schur", "solve_schur",
-           "LSQ_RTOL", "LSQ_REFINE"]
+           "schur_solve", "LSQ_RTOL", "LSQ_REFINE"]
 
 #: Least-squares multipliers: ``S`` is factorised as ``S + mu I`` with ``mu`` this fraction of its largest diagonal
 #: entry (a Tikhonov/Levenberg damping that keeps the factorisation defined when rows are redundant or the
@@ -370,14 +370,16 @@ def schur(prep: Prepared, r: Rows) -> Float[Array, "C C"]:
     return jnp.block([[s, s_xk], [s_xk.T, s_kk]])
 
 
-def apply_j(prep: Prepared, r: Rows, y: Float[Array, "F 3"]) -> Float[Array, " C"]:
-    """``J y`` for ``y`` (F, 3)."""
+def apply_j(prep: Prepared, r: Rows, y: Float[Array, "F 3"], *, matmul: bool = False) -> Float[Array, " C"]:
+    """``J y`` for ``y`` (F, 3); ``matmul``: the products with the rows' constant matrices as matrix products (for
+    :func:`schur_solve`'s tangent, whose transposes are then matrix products too) instead of :func:`_mm`."""
     n = prep.scale.shape[0]
-    dy = _mm(prep.d, y)
+    mm = jnp.matmul if matmul else _mm
+    dy = mm(prep.d, y)
     dot = prep.scale * jnp.sum((_partner(r.vu, prep.turn) * dy).reshape(2, n, 3), axis=(0, 2))
     out = [dot, jnp.sum(prep.j_lin * y[None], axis=(1, 2))]
     if r.drive is not None:
-        out.append(jnp.sum(_mm(prep.drv_d, y) * r.drive.n, axis=1))
+        out.append(jnp.sum(mm(prep.drv_d, y) * r.drive.n, axis=1))
     return jnp.concatenate(out)
 
 
@@ -404,6 +406,42 @@ def jacobian(prep: Prepared, r: Rows) -> Float[Array, "C F 3"]:
     if r.drive is not None:
         out.append(prep.drv_d[:, :, None] * r.drive.n[:, None, :])
     return jnp.concatenate(out, axis=0)
+
+
+@jax.custom_jvp
+def schur_solve(prep: Prepared, r: Rows, s: Float[Array, "C C"], rhs: Float[Array, " C"]) -> Float[Array, " C"]:
+    """``S^-1 rhs`` for ``s = schur(prep, r)`` (passed in, so that several solves with one ``S`` share it) by one
+    Cholesky factorisation, differentiated as a solve whose matrix is applied rather than formed: the tangent is
+    ``S^-1 (d rhs - dS lam)`` with ``dS lam`` the tangent of the product ``J (M^-1 J^T lam)`` at fixed ``lam``
+    (:func:`apply_j` of :func:`apply_minv_jt`: products with the rows' constant matrices, O(C F)) in ``prep`` and
+    ``r``; the tangent of ``s`` itself is not used. Differentiated through ``S`` instead, every direction forms the
+    whole ``dS``, and reverse mode the whole cotangent of the Gram matrix of ``E`` (2D x 2D) and its products with
+    ``E``."""
+    return cho_solve(cho_factor(s), rhs)
+
+
+@functools.partial(schur_solve.defjvp, symbolic_zeros=True)
+def _schur_solve_jvp(primals, tangents):
+    prep, r, s, rhs = primals
+    dprep, dr, _, drhs = tangents
+    chol = cho_factor(s)
+    lam = cho_solve(chol, rhs)
+    # Only the inputs with a tangent are varied (zero tangents would otherwise cost their products too).
+    leaves, treedef = jax.tree.flatten((prep, r))
+    dleaves = jax.tree.leaves((dprep, dr), is_leaf=_zero)
+    assert len(dleaves) == len(leaves)
+    live = [i for i, t in enumerate(dleaves) if not _zero(t)]
+    tangent = jnp.zeros_like(lam) if _zero(drhs) else drhs
+    if live:
+        def s_lam(*xs):
+            full = list(leaves)
+            for i, x in zip(live, xs):
+                full[i] = x
+            p, rr = jax.tree.unflatten(treedef, full)
+            return apply_j(p, rr, apply_minv_jt(p, rr, lam), matmul=True)
+
+        tangent = tangent - jax.jvp(s_lam, [leaves[i] for i in live], [dleaves[i] for i in live])[1]
+    return lam, cho_solve(chol, tangent)
 
 
 class SchurFactor(eqx.Module):

@@ -29,9 +29,8 @@ import jax.numpy as jnp
 import jax.scipy.linalg  # noqa: F401
 from jaxtyping import Array, Float
 
-from .._linalg import spd_solve
 from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, gamma, jacobian, prepare, residual,
-                       rows, schur, solve_schur, velocity_target)
+                       rows, schur, schur_solve, solve_schur, velocity_target)
 from ._algebra import LSQ_REFINE, LSQ_RTOL
 from ._algebra import lumped_masses, mass_matrix, scalar_mass_matrix
 from .forces import generalized_point_forces, point_forces, potential_energy, torque_forces
@@ -79,7 +78,7 @@ def _solve(mech: Mechanism, prep: Prepared, t, q, qd, baumgarte: float, contact=
     if mech.topo.least_squares:
         lam = solve_schur(factor_schur(schur(prep, r), True), apply_j(prep, r, minv_q) - g)
     else:
-        lam = spd_solve(schur(prep, r), apply_j(prep, r, minv_q) - g)
+        lam = schur_solve(prep, r, schur(prep, r), apply_j(prep, r, minv_q) - g)
     return (minv_q - apply_minv_jt(prep, r, lam)).reshape(-1), lam
 
 

@@ -31,9 +31,8 @@ from .. import _ode
 from .._ode import ADJOINTS, Solution
 from ..errors import ModelError
 from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_project
-from .._linalg import spd_solve
 from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian, prepare, residual, rows,
-                       schur, solve_schur, velocity_target)
+                       schur, schur_solve, solve_schur, velocity_target)
 from .dynamics import _solve
 from .forces import tyre_deflections
 from .model import Mechanism
@@ -69,14 +68,15 @@ def project_prepared(mech: Mechanism, prep: Prepared, q, qd, t=0.0):
         return _project_euclid(mech, prep, q, qd, drive)
     r0 = r = rows(prep, q, drive=drive)
     # One factorisation at the stepped state serves every pass below (least squares: minimum-norm corrections).
-    # Without least squares each pass is an ``spd_solve`` of the same S: XLA computes its factorisation once, and
-    # derivatives take the solve's cheap tangent instead of going through the factorisation.
+    # Without least squares each pass is a ``schur_solve`` with the same S: XLA computes its factorisation once, and
+    # derivatives take the solve's tangent (dS applied to the multipliers, never formed) instead of going through
+    # the factorisation and S.
     s0 = schur(prep, r0)
     if mech.topo.least_squares:
         factor = factor_schur(s0, True)
         solve = lambda rhs: solve_schur(factor, rhs)  # noqa: E731
     else:
-        solve = lambda rhs: spd_solve(s0, rhs)  # noqa: E731
+        solve = lambda rhs: schur_solve(prep, r0, s0, rhs)  # noqa: E731
     for _ in range(_POSITION_ITERATIONS):
         lam = solve(residual(prep, mech.dot_kappa, r, q))
         q = q - apply_minv_jt(prep, r0, lam).reshape(-1)
