@@ -36,6 +36,7 @@ from ..particles import primary_mass_matrix
 from .constraints import linear_blocks, point_free_weights, point_weights, points, quarter_turn
 from .model import Mechanism
 from .._jit import compiled
+from .._linalg import spd_solve_applied
 
 __all__ = ["Prepared", "prepare", "scalar_mass_matrix", "Rows", "rows", "schur", "apply_j", "apply_minv_jt",
            "residual", "gamma", "velocity_target", "Drive", "drive_at", "SchurFactor", "factor_schur", "solve_schur",
@@ -408,40 +409,19 @@ def jacobian(prep: Prepared, r: Rows) -> Float[Array, "C F 3"]:
     return jnp.concatenate(out, axis=0)
 
 
-@jax.custom_jvp
 def schur_solve(prep: Prepared, r: Rows, s: Float[Array, "C C"], rhs: Float[Array, " C"]) -> Float[Array, " C"]:
     """``S^-1 rhs`` for ``s = schur(prep, r)`` (passed in, so that several solves with one ``S`` share it) by one
-    Cholesky factorisation, differentiated as a solve whose matrix is applied rather than formed: the tangent is
-    ``S^-1 (d rhs - dS lam)`` with ``dS lam`` the tangent of the product ``J (M^-1 J^T lam)`` at fixed ``lam``
-    (:func:`apply_j` of :func:`apply_minv_jt`: products with the rows' constant matrices, O(C F)) in ``prep`` and
-    ``r``; the tangent of ``s`` itself is not used. Differentiated through ``S`` instead, every direction forms the
-    whole ``dS``, and reverse mode the whole cotangent of the Gram matrix of ``E`` (2D x 2D) and its products with
-    ``E``."""
-    return cho_solve(cho_factor(s), rhs)
+    Cholesky factorisation, differentiated as a solve whose matrix is applied, not formed
+    (:func:`~particlesim._linalg.spd_solve_applied`): ``dS lam`` is the tangent of ``J (M^-1 J^T lam)`` at fixed
+    ``lam`` (:func:`apply_j` of :func:`apply_minv_jt`, products with the rows' constant matrices, O(C F)).
+    Differentiated through ``S``, reverse mode formed the whole cotangent of the Gram matrix of ``E`` (2D x 2D) and
+    its products with ``E``: the largest kernels of the quarter car's backward pass."""
+    return spd_solve_applied(_schur_apply, (prep, r), s, rhs)
 
 
-@functools.partial(schur_solve.defjvp, symbolic_zeros=True)
-def _schur_solve_jvp(primals, tangents):
-    prep, r, s, rhs = primals
-    dprep, dr, _, drhs = tangents
-    chol = cho_factor(s)
-    lam = cho_solve(chol, rhs)
-    # Only the inputs with a tangent are varied (zero tangents would otherwise cost their products too).
-    leaves, treedef = jax.tree.flatten((prep, r))
-    dleaves = jax.tree.leaves((dprep, dr), is_leaf=_zero)
-    assert len(dleaves) == len(leaves)
-    live = [i for i, t in enumerate(dleaves) if not _zero(t)]
-    tangent = jnp.zeros_like(lam) if _zero(drhs) else drhs
-    if live:
-        def s_lam(*xs):
-            full = list(leaves)
-            for i, x in zip(live, xs):
-                full[i] = x
-            p, rr = jax.tree.unflatten(treedef, full)
-            return apply_j(p, rr, apply_minv_jt(p, rr, lam), matmul=True)
-
-        tangent = tangent - jax.jvp(s_lam, [leaves[i] for i in live], [dleaves[i] for i in live])[1]
-    return lam, cho_solve(chol, tangent)
+def _schur_apply(params, lam):
+    prep, r = params
+    return apply_j(prep, r, apply_minv_jt(prep, r, lam), matmul=True)
 
 
 class SchurFactor(eqx.Module):

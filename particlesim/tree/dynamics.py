@@ -28,7 +28,7 @@ from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
 from .._jit import compiled
-from .._linalg import spd_solve
+from .._linalg import spd_solve_applied
 from ..errors import ModelError
 from .kinematics import _has_quaternions
 from .model import TreeModel
@@ -252,7 +252,16 @@ def _forward_dynamics(model: TreeModel, q, qd, tau, smooth_friction):
     if one_state_sweeps(model):
         return aba_one_state(model, q, qd, rhs)
     b = _bodies(model, q)
-    return spd_solve(_mass_matrix(model, b), rhs - _rnea(model, b, qd, None, model.gravity))
+    return spd_solve_applied(_mass_apply, (model, b), _mass_matrix(model, b), rhs - _rnea(model, b, qd, None,
+                                                                                      model.gravity))
+
+
+def _mass_apply(params, x):
+    """``A x`` without forming ``A``: inverse dynamics at zero velocity and gravity (O(N)); derivatives of the
+    Cholesky solve take their ``dA lam`` from it (:func:`~particlesim._linalg.spd_solve_applied`)."""
+    model, b = params
+    ax = _rnea(model, b, None, x, None)
+    return ax if model.rotor_inertia is None else ax + model.rotor_inertia * x
 
 
 @compiled("forward_dynamics", static=("smooth_friction",), check=_concrete_checks, arrays_only=True)

@@ -14,7 +14,7 @@ from particlesim.tree import (
     wrench_torques,
 )
 from particlesim.io import load_urdf
-from tree_helpers import max_rel, random_tree_urdf
+from tree_helpers import max_rel, random_tree_urdf, states
 
 EXACT_RTOL = 1e-12
 
@@ -132,3 +132,55 @@ def test_forward_dynamics_gradients_wrt_parameters(tiny_tree):
 
     check_grads(f, (tiny_tree.inertia, tiny_tree.origin_xyz, tiny_tree.rotor_inertia), order=1,
                 modes=("fwd", "rev"))
+
+
+#: Forward dynamics' derivatives through the applied-matrix solve against those of the formed mass matrix's solve.
+APPLIED_SOLVE_RTOL = 1e-10
+
+
+def _applied_solve_models():
+    from test_floating_base import floating_tree
+    from test_mimic import with_mimics
+
+    yield "3 links, prismatic, rotor inertia", load_urdf(
+        random_tree_urdf(11, n=3, prismatic=0.5), gravity=(0.0, -9.81, 0.0), rotor_inertia=[0.01, 0.02, 0.03])
+    yield "mimic joint", load_urdf(with_mimics(random_tree_urdf(0, n=5, prismatic=0.3), {"j3": ("j1", -0.7, 0.25)}),
+                                   gravity=(0.0, 0.0, -9.81), limits="ignore")
+    yield "floating base", load_urdf(floating_tree(3, 3), floating_base=True, limits="ignore",
+                                     gravity=(0.2, -9.81, 0.4))
+
+
+@pytest.mark.parametrize("case", range(3))
+def test_forward_dynamics_derivatives_match_the_formed_mass_matrix_solve(case):
+    """One-state forward dynamics take ``dA lam`` from inverse dynamics at zero velocity (``A`` applied, not
+    formed); their Jacobians in the state and the link inertias, forward and reverse, against JAX's derivatives of
+    ``jnp.linalg.solve`` with the formed ``A``, on a tree with rotor inertias, one with a mimic joint and a floating
+    base (quaternion coordinates); and ``A x`` applied against ``A`` formed."""
+    from particlesim.tree import dynamics as dyn
+
+    name, model = list(_applied_solve_models())[case]
+    assert not dyn.one_state_sweeps(model), name  # the composite-inertia path is the one tested
+    q, qd, tau, _ = (jnp.asarray(v[0]) for v in states(np.random.default_rng(case), 1, model.nq, model.nv,
+                                                         quaternions=(3,) if name == "floating base" else ()))
+    b = dyn._bodies(model, q)
+    x = jnp.asarray(np.random.default_rng(10 + case).normal(size=model.nv))
+    formed = dyn._mass_matrix(model, b) @ x
+    np.testing.assert_allclose(dyn._mass_apply((model, b), x), formed, rtol=0,
+                               atol=1e-12 * float(jnp.abs(formed).max()))
+
+    def dense(m, q, qd):
+        rhs = dyn._generalised_forces(m, q, qd, tau, None)
+        bb = dyn._bodies(m, q)
+        return jnp.linalg.solve(dyn._mass_matrix(m, bb), rhs - dyn._rnea(m, bb, qd, None, m.gravity))
+
+    def ours(m, q, qd):
+        return dyn._forward_dynamics(m, q, qd, tau, None)
+
+    def by_inertia(f):
+        return lambda inertia, q, qd: f(model.with_params(inertia=inertia), q, qd)
+
+    args = (model.inertia, q, qd)
+    for jac in (jax.jacfwd, jax.jacrev):
+        for got, ref in zip(jac(by_inertia(ours), argnums=(0, 1, 2))(*args),
+                            jac(by_inertia(dense), argnums=(0, 1, 2))(*args)):
+            np.testing.assert_allclose(got, ref, rtol=0, atol=APPLIED_SOLVE_RTOL * float(jnp.abs(ref).max()))
