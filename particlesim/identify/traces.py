@@ -164,8 +164,9 @@ def fit_traces(model: TraceModel, y_meas, starts, *, sigma: Optional[float] = No
     whose step shortening falls below 1e-3 stops unconverged. ``sigma``: the measurement noise standard deviation,
     for the standard errors; given it, the fit also ends as soon as a converged start's residual is at the noise
     floor (sum of squares within three chi-square standard deviations of ``sigma^2 (M - P)``): no other minimum
-    can fit better than the noise. At most ``max_evaluations`` evaluations. Raises ``ValueError`` for wrong
-    shapes, non-positive or non-finite starts or data, or a start whose rollout fails.
+    can fit better than the noise. At most ``max_evaluations`` evaluations. A step to constants where the residual
+    or its Jacobian is not finite is shortened as an uphill one. Raises ``ValueError`` for wrong shapes,
+    non-positive or non-finite starts or data, or a start whose rollout or Jacobian is not finite.
     """
     y_meas = np.asarray(y_meas, dtype=float)
     if y_meas.shape != model.output_shape or not np.all(np.isfinite(y_meas)):
@@ -181,15 +182,19 @@ def fit_traces(model: TraceModel, y_meas, starts, *, sigma: Optional[float] = No
     y_j = jnp.asarray(y_meas)
 
     def evaluate(lp):
+        """Residuals, Jacobians and costs; a point whose residual or Jacobian is not finite (a failed rollout, or a
+        failed one among a difference Jacobian's) costs ``inf``, so a step onto it is shortened like one uphill."""
         r, jac = model.residual_jacobian(jnp.asarray(lp), y_j)
         r, jac = np.array(r), np.array(jac)
         cost = np.einsum("sm,sm->s", r, r)
-        return r, jac, np.where(np.isfinite(cost), cost, np.inf)
+        ok = np.isfinite(cost) & np.isfinite(jac).all(axis=(1, 2))
+        return r, jac, np.where(ok, cost, np.inf)
 
     lp = np.log(starts)
     r, jac, cost = evaluate(lp)
     if not np.all(np.isfinite(cost)):
-        raise ValueError(f"the rollout fails at starts {np.flatnonzero(~np.isfinite(cost)).tolist()}")
+        raise ValueError(f"the rollout or its Jacobian is not finite at starts "
+                         f"{np.flatnonzero(~np.isfinite(cost)).tolist()}: {starts[~np.isfinite(cost)].tolist()}")
     n_start, n_par = lp.shape
     dof = max(r.shape[1] - n_par, 1)
     floor = np.inf if sigma is None else sigma**2 * (dof + 3 * np.sqrt(2 * dof))

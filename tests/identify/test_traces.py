@@ -62,3 +62,43 @@ def test_trace_model_refuses_unknown_paths_and_bad_runs():
     with pytest.raises(ValueError, match="finite"):
         trace_model(mech, x0, [0.0, 1.0], {"k": ("spring", "spring", "stiffness")}, observe,
                     runs=[{("body", "rocker", "mass"): np.nan}])
+
+
+def _toy_model(jac_fails):
+    """A two-constant exponential-decay TraceModel in plain numpy (no rollout): y = p0 exp(-p1 t). Its Jacobian is
+    NaN wherever ``jac_fails(log_p)`` holds (as a difference Jacobian is when one perturbed rollout fails)."""
+    from particlesim.identify.traces import TraceModel
+
+    ts = np.linspace(0.0, 2.0, 21)
+
+    def outputs(p):
+        p = np.asarray(p)
+        return (p[:, :1] * np.exp(-p[:, 1:] * ts[None]))[:, None]
+
+    def residual_jacobian(lp, y):
+        lp = np.asarray(lp)
+        p = np.exp(lp)
+        e = np.exp(-p[:, 1:] * ts[None])
+        r = p[:, :1] * e - np.asarray(y)[0][None]
+        jac = np.stack([p[:, :1] * e, -p[:, :1] * p[:, 1:] * ts[None] * e], axis=2)
+        jac[np.array([bool(jac_fails(x)) for x in lp])] = np.nan
+        return r, jac
+
+    return TraceModel(("a", "k"), ts, 1, (1, ts.size), outputs, residual_jacobian)
+
+
+def test_fit_shortens_a_step_onto_a_non_finite_jacobian_and_names_a_failing_start():
+    """A Gauss-Newton step whose Jacobian is not finite (a failed rollout among a difference Jacobian's, found in
+    the quarter-car identification benchmark, where it had reached a least-squares solve and raised LinAlgError) is
+    shortened like an uphill step; a start whose Jacobian is not finite is refused, naming it."""
+    true = np.array([2.0, 1.5])
+    y = _toy_model(lambda lp: False).outputs(true[None])[0]
+    start = np.array([[1.0, 0.5]])
+    clean = fit_traces(_toy_model(lambda lp: False), y, start)
+    # the first full step from this start lands beyond k = 1.0; a Jacobian there fails
+    fails = _toy_model(lambda lp: np.exp(lp[1]) > 1.0 and np.exp(lp[1]) < 1.45)
+    fit = fit_traces(fails, y, start)
+    np.testing.assert_allclose(fit.p, true, rtol=1e-8)
+    assert fit.evaluations > clean.evaluations  # the failed point was met and stepped around
+    with pytest.raises(ValueError, match=r"not finite at starts \[0\]"):
+        fit_traces(_toy_model(lambda lp: True), y, start)
