@@ -25,6 +25,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 from .errors import ModelError
@@ -394,8 +395,22 @@ def _raise_failed(x, result, hint: str = ""):
     return eqx.branched_error_if(x, result != diffrax.RESULTS.successful, result._value, messages)
 
 
-#: Event times are located by Newton's method on the step's dense output to this tolerance [s].
+#: Event times are located by bisection on the step's dense output to this tolerance [s] (absolute, plus this
+#: fraction of the time).
 EVENT_TOL = 1e-13
+
+
+class _EventBisection(optx.Bisection):
+    """Bisection for the event time (diffrax brackets it by the step that crossed), ending when the bracket is
+    below ``rtol |t| + atol``. Not optimistix's test, which also asks ``|f| < atol`` in the switching function's own
+    units (out of reach at a steep crossing once the bracket reaches the time's resolution), nor its containment
+    check, which stops a run: diffrax also root-finds event-free and zero-length steps (the members without an
+    event of a vectorised batch where one has; the segments after a run ends) with a function that is zero at the
+    upper end. Use with ``flip=True``: the event function decreases through its root (``direction=False``); with no
+    sign change the bracket closes on the upper end, the step's end."""
+
+    def terminate(self, fn, y, args, options, state, tags):
+        return jnp.abs(state.upper - state.lower) < self.atol + self.rtol * jnp.abs(y), optx.RESULTS.successful
 
 
 def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_surfaces: int, max_events: int, *,
@@ -408,18 +423,22 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
     modes)`` (S,) are the switching functions signed so that they are positive in the current mode and cross zero
     downwards at a switch. Each segment runs until the first crossing, located by a root-find on the step's
     dense output (so the event time is a differentiable function of parameters and state, by the implicit
-    function theorem); the element's law flips there and the next segment starts from the event state
-    (projected, if ``projection`` is given). ``max_events + 1`` segments at most (one ``lax.scan``, so every adjoint
+    function theorem); the element's law flips there (with any other already across) and the next segment starts
+    from the event state (projected, if ``projection`` is given). ``max_events + 1`` segments at most (one ``lax.scan``, so every adjoint
     differentiates it); a run with more switches fails. Returns ``(ts, ys, steps, rejected, result, ok, events)``.
     """
-    import optimistix as optx
-
     solver, controller = _solver_and_controller(cfg, rtol, atol, projection)
     own, diffrax_throws = _who_throws(cfg)
     save = ts if cfg.save_ts else jnp.stack([t0, t1])
-    root = optx.Newton(rtol=EVENT_TOL, atol=EVENT_TOL)
-    conds = [lambda t, y, args, _i=i, **kw: surfaces(t, y, args[0], args[1])[_i] for i in range(n_surfaces)]
-    event = diffrax.Event(conds, root_finder=root, direction=[False] * n_surfaces)
+    # One event function, the least of the surfaces: it crosses zero (downwards) when the first of them does,
+    # located by bisection within the step that crossed. Newton's method (with one function per surface) was not
+    # robust: on a quarter car whose tyre lifts off and lands within tens of ms it reported a wrong time and then
+    # failed to converge, for constants 1e-4 (relative) from ones where it had converged; and with two surfaces
+    # crossing in one step a vector of functions has no common root. Bisection keeps the root inside the step
+    # and halves the bracket to EVENT_TOL.
+    root = _EventBisection(rtol=EVENT_TOL, atol=EVENT_TOL, flip=True)
+    event = diffrax.Event(lambda t, y, args, **kw: jnp.min(surfaces(t, y, args[0], args[1])), root_finder=root,
+                          direction=False)
     term = diffrax.ODETerm(field)
 
     def segment(carry, _):
@@ -431,10 +450,13 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
             saveat=diffrax.SaveAt(subs=[diffrax.SubSaveAt(ts=jnp.clip(save, t_s, t1)), diffrax.SubSaveAt(t1=True)]),
             stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps, throw=diffrax_throws,
             event=event)
-        which = jnp.stack([jnp.asarray(m) for m in sol.event_mask])
-        hit = jnp.any(which)
+        hit = jnp.asarray(sol.event_mask)
         t_e = sol.ts[1][0]  # the event time (t1 without an event)
         y_e = jax.tree.map(lambda v: v[0], sol.ys[1])
+        # The element whose surface the event's root is on (the least), and any other already across (switches
+        # simultaneous to the tolerance flip together).
+        s_e = surfaces(t_e, y_e, args, modes)
+        which = hit & ((jnp.arange(n_surfaces) == jnp.argmin(s_e)) | (s_e < 0.0))
         if projection is not None:
             y_e = projection(t_e, y_e, args)
         seg = sol.ys[0]
