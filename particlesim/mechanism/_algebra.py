@@ -36,7 +36,7 @@ from ..particles import primary_mass_matrix
 from .constraints import linear_blocks, point_free_weights, point_weights, points, quarter_turn
 from .model import Mechanism
 from .._jit import compiled
-from .._linalg import spd_solve_applied
+from .._linalg import _zero, spd_solve_applied
 
 __all__ = ["Prepared", "prepare", "scalar_mass_matrix", "Rows", "rows", "schur", "apply_j", "apply_minv_jt",
            "residual", "gamma", "velocity_target", "Drive", "drive_at", "SchurFactor", "factor_schur", "solve_schur",
@@ -272,10 +272,6 @@ def _outer_sum_jvp(primals, tangents):
 def _broadcast_sum(a: Array, b: Array) -> Array:
     """``a @ b`` as a broadcast product summed over the inner axis (one fused loop)."""
     return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
-
-
-def _zero(t) -> bool:
-    return isinstance(t, jax.custom_derivatives.SymbolicZero)
 
 
 def rows(prep: Prepared, q: Float[Array, " 3F"], qd=None, drive: Drive | None = None) -> Rows:

@@ -180,19 +180,6 @@ def test_schur_outer_and_gram_forms_agree_with_derivatives(scene, monkeypatch):
 SCHUR_SOLVE_RTOL = 1e-10
 
 
-def _driven_pendulum():
-    """A planar rod pendulum whose pivot is driven along x and held in y (driving rows)."""
-    from particlesim.mechanism import MechanismBuilder
-
-    mb = MechanismBuilder(planar=True)
-    mb.particle("S", (0.0, 0.0))
-    mb.particle("P", (0.3, -0.7))
-    mb.rod("pendulum", "S", "P", 1.3)
-    mb.drive_position("pivot x", "S", lambda t: 0.1 * jnp.sin(5.0 * t), axis=(1.0, 0.0))
-    mb.drive_position("pivot y", "S", lambda t: 0.0 * t, axis=(0.0, 1.0))
-    return mb.build(dof=1)
-
-
 @pytest.mark.parametrize("scene", ["quarter car", "driven pendulum", "Nikravesh AA"])
 def test_schur_solve_derivatives_match_the_dense_solve(scene):
     """``schur_solve``'s own derivative rule (``dS lam`` applied, never formed) against JAX's derivatives of the
@@ -203,8 +190,9 @@ def test_schur_solve_derivatives_match_the_dense_solve(scene):
     from jax.test_util import check_grads
 
     from particlesim.mechanism import _algebra
+    from test_drivers import _pendulum  # the pendulum on a sideways-driven pivot
 
-    mech, x0 = {"quarter car": quarter_car, "driven pendulum": _driven_pendulum, "Nikravesh AA": aa_mechanism}[scene]()
+    mech, x0 = {"quarter car": quarter_car, "driven pendulum": _pendulum, "Nikravesh AA": aa_mechanism}[scene]()
     assert mech.n_constraints and not mech.topo.saddle_point and not mech.topo.least_squares  # the path tested
     names = mech.topo.body_names
     rng = np.random.default_rng(1)
