@@ -38,15 +38,18 @@ def _inertial(rng) -> str:
             f'iyz="{i[1, 2]:.17g}" izz="{i[2, 2]:.17g}"/></inertial>')
 
 
-def random_tree_urdf(seed: int, n: int, *, prismatic: float = 0.3, fixed_extra: bool = True) -> str:
+def random_tree_urdf(seed: int, n: int, *, prismatic: float = 0.3, fixed_extra: bool = True,
+                     chain: bool = False) -> str:
     """A seeded random tree of ``n`` moving links (revolute/continuous/prismatic, random axes, origins and
-    inertias) under a massless root ``base``; with ``fixed_extra`` one more link welded by a fixed joint."""
+    inertias) under a massless root ``base``; with ``fixed_extra`` one more link welded by a fixed joint; with
+    ``chain`` every link the child of the one before."""
     rng = np.random.default_rng(seed)
     links = ['<link name="base"/>']
     joints = []
     for i in range(n):
         links.append(f'<link name="l{i}">{_inertial(rng)}</link>')
         parent = "base" if i == 0 else (f"l{rng.integers(0, i)}" if rng.uniform() < 0.6 else f"l{i - 1}")
+        parent = parent if i == 0 or not chain else f"l{i - 1}"
         kind = "prismatic" if rng.uniform() < prismatic else ("revolute" if rng.uniform() < 0.7 else "continuous")
         axis = rng.normal(size=3)
         axis /= np.linalg.norm(axis)
@@ -116,6 +119,14 @@ class PinocchioOracle:
         pin.updateFramePlacements(self.model, self.data)
         ref = pin.LOCAL if local else pin.LOCAL_WORLD_ALIGNED
         return pin.getFrameJacobian(self.model, self.data, self.model.getFrameId(link), ref)[:, self.idx]
+
+
+    def placement(self, q, link):
+        """The world rotation and origin of ``link``'s frame."""
+        qp, _ = self._qv(q)
+        self.pin.framesForwardKinematics(self.model, self.data, qp)
+        m = self.data.oMf[self.model.getFrameId(link)]
+        return np.asarray(m.rotation), np.asarray(m.translation)
 
 
 def max_rel(a, b) -> float:

