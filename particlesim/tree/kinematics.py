@@ -35,7 +35,7 @@ __all__ = [
 
 
 def _mm(a, b):
-    """Small matrix product (3x3, 3x4) as a broadcast sum: fuses with its neighbours on CPU (tiny ``dot`` ops do not)."""
+    """Small matrix product (3x3, 3x4 by 4x4) as a broadcast sum: fuses with its neighbours on CPU (tiny ``dot`` ops do not)."""
     return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
 
 
@@ -108,18 +108,20 @@ def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
     Composed by pointer jumping over the tree (:func:`_ancestor_rounds`): every round composes all links at once with
     the pose of an ancestor twice as far up, so a tree of depth ``d`` takes about log2(d) vectorised rounds instead of
     one small product per link. Krang (18 links, 10 deep): 4 rounds instead of 17 link-by-link products; its
-    one-state forward dynamics inside a compiled loop took 13.8-14.0 us before, 12.4-12.5 us after (XLA's CPU runtime
-    pays for every kernel it dispatches: 80 kernels became 41). Under ``jax.vmap`` the rounds' extra arithmetic shows:
-    4 Krang states vmapped inside a loop 9.6 -> 10.0 us per state, 1024 vmapped 18 -> 21-22 us per state (a batch
-    passed to :func:`~.dynamics.forward_dynamics` takes the articulated-body sweeps instead). Homogeneous 4 x 4 products (one kernel fewer per
-    round) ran 11.8 us for one state but 19.4 us per state vmapped, hence [R | p] and a separate offset."""
+    one-state forward dynamics inside a compiled loop took 13.6-14.1 us before, 11.6-11.7 us after (XLA's CPU runtime
+    pays for every kernel it dispatches: 80 kernels became 37), 4 states vmapped inside a loop 9.6 -> 9.1 us per
+    state, but 1024 vmapped at once 18 -> 21 us per state (there the rounds' extra arithmetic shows; a batch passed
+    to :func:`~.dynamics.forward_dynamics` takes the articulated-body sweeps instead). Each round multiplies the
+    ancestors' ``[R | p]`` (3 x 4) by the links' homogeneous 4 x 4 transforms: square 4 x 4 throughout ran 11.8 us for
+    one state but 19.4 us per state vmapped by 4; ``R`` and ``p`` composed separately, 12.5 and 10.0 us."""
     r_rel, p_rel = joint_transforms(model, q)
-    # [R | p] (n, 3, 4); the last row of the gathered table is the world (identity).
-    t = jnp.concatenate([r_rel, p_rel[:, :, None]], axis=2)
+    n = r_rel.shape[0]
+    t = jnp.concatenate([r_rel, p_rel[:, :, None]], axis=2)  # [R | p] (n, 3, 4)
+    # the gathered table's last entry is the world; the links' transforms get the homogeneous row [0 0 0 1]
     world = jnp.concatenate([jnp.eye(3, dtype=t.dtype), jnp.zeros((3, 1), t.dtype)], axis=1)[None]
+    last = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 0.0, 1.0], t.dtype), (n, 1, 4))
     for anc in _ancestor_rounds(tuple(model.parents)):
-        up = jnp.concatenate([t, world])[anc]
-        t = _mm(up[:, :, :3], t) + jnp.concatenate([jnp.zeros_like(up[:, :, :3]), up[:, :, 3:]], axis=2)
+        t = _mm(jnp.concatenate([t, world])[anc], jnp.concatenate([t, last], axis=1))
     return t[:, :, :3], t[:, :, 3]
 
 
