@@ -29,11 +29,11 @@ import jax.numpy as jnp
 import jax.scipy.linalg  # noqa: F401
 from jaxtyping import Array, Float
 
-from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, gamma, jacobian, prepare, residual,
-                       rows, schur, schur_solve, solve_schur, velocity_target)
+from ._algebra import (Prepared, _mm, apply_j, apply_minv_jt, drive_at, factor_schur, gamma, jacobian, prepare,
+                       residual, rows, schur, schur_solve, solve_schur, velocity_target)
 from ._algebra import LSQ_REFINE, LSQ_RTOL
 from ._algebra import lumped_masses, mass_matrix, scalar_mass_matrix
-from .forces import generalized_point_forces, point_forces, potential_energy, torque_forces
+from .forces import generalized_point_forces, point_force_terms, potential_energy, torque_forces
 from .model import AppliedForce, Mechanism
 from .._jit import compiled
 
@@ -52,14 +52,15 @@ def mass_properties(mech: Mechanism) -> Prepared:
 
 
 def _forces(mech: Mechanism, prep: Prepared, t, q, qd, contact=None):
-    """Point forces ``(K, 3)`` (or None) and torque generalised forces ``(3F,)`` (or None)."""
+    """Point forces as ``(idx, f)`` (:func:`~.forces.point_force_terms`; or None) and torque generalised forces
+    ``(3F,)`` (or None)."""
     topo = mech.topo
-    f_pts = None
+    terms = None
     if topo.spring_names or topo.tyre_names or any(isinstance(ap, AppliedForce) for ap in mech.applied):
         pts = prep.wk @ q.reshape(-1, 3) + prep.p0
         vel = prep.wk @ qd.reshape(-1, 3)
-        f_pts = point_forces(mech, t, q, qd, pts, vel, contact)
-    return f_pts, torque_forces(mech, t, q, qd)
+        terms = point_force_terms(mech, t, q, qd, pts, vel, contact)
+    return terms, torque_forces(mech, t, q, qd)
 
 
 def _solve(mech: Mechanism, prep: Prepared, t, q, qd, baumgarte: float, contact=None):
@@ -68,12 +69,13 @@ def _solve(mech: Mechanism, prep: Prepared, t, q, qd, baumgarte: float, contact=
     if baumgarte:
         g = g - 2.0 * baumgarte * (apply_j(prep, r, qd.reshape(-1, 3)) - velocity_target(prep, r)) - \
             baumgarte**2 * residual(prep, mech.dot_kappa, r, q)
-    f_pts, q_torque = _forces(mech, prep, t, q, qd, contact)
+    terms, q_torque = _forces(mech, prep, t, q, qd, contact)
     if mech.topo.saddle_point:
+        f_pts = None if terms is None else jnp.zeros_like(prep.p0).at[terms[0]].add(terms[1])
         return _solve_kkt(prep, r, g, f_pts, q_torque, mech.topo.least_squares)
     minv_q = prep.minv_qg
-    if f_pts is not None:
-        minv_q = minv_q + prep.mwk @ f_pts
+    if terms is not None:  # only the loaded points' columns of M^-1 W^T (a constant gather), no scatter
+        minv_q = minv_q + _mm(prep.mwk[:, terms[0]], terms[1])
     if q_torque is not None:
         minv_q = minv_q + prep.minv @ q_torque.reshape(-1, 3)
     if g.shape[0] == 0:

@@ -19,8 +19,8 @@ from ._algebra import lumped_masses
 from .model import AppliedForce, AppliedTorque, BodyLoad, Mechanism
 from .._jit import compiled
 
-__all__ = ["generalized_forces", "point_forces", "generalized_point_forces", "torque_forces", "potential_energy",
-           "spring_lengths", "body_angular_velocity", "rotational_angles"]
+__all__ = ["generalized_forces", "point_forces", "point_force_terms", "generalized_point_forces", "torque_forces",
+           "potential_energy", "spring_lengths", "body_angular_velocity", "rotational_angles"]
 
 
 def _pts(mech: Mechanism, q):
@@ -58,15 +58,16 @@ def tyre_deflections(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, 
     return jnp.sum(pts[k] * n, axis=1) - mech.tyre_ground - mech.tyre_radius
 
 
-def point_forces(mech: Mechanism, t, q, qd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"], contact=None):
-    """Cartesian force on every point from springs, tyres and applied forces, ``(K, 3)``; ``None`` if the
-    mechanism has none of them. ``contact`` (T,) fixes each tyre's law (in contact or not) instead of reading it
-    from the sign of its deflection: the smooth branch of an evented rollout (:mod:`.events`)."""
+def point_force_terms(mech: Mechanism, t, q, qd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"], contact=None):
+    """The point forces of springs, tyres and applied forces as ``(idx, f)``: forces ``f`` (P, 3) on the points
+    ``idx`` (P,), a static index array that may repeat points (the caller sums them); ``None`` if the mechanism has
+    none of them. ``contact`` (T,) fixes each tyre's law (in contact or not) instead of reading it from the sign of
+    its deflection: the smooth branch of an evented rollout (:mod:`.events`)."""
     topo = mech.topo
     forces_applied = [ap for ap in mech.applied if isinstance(ap, AppliedForce)]
     if not (topo.spring_names or topo.tyre_names or forces_applied):
         return None
-    f_pts = jnp.zeros_like(pts)
+    idx, fs = [], []
     if topo.spring_names:
         ab = np.asarray(topo.spring_points, dtype=int)
         a, b = ab[:, 0], ab[:, 1]
@@ -75,7 +76,8 @@ def point_forces(mech: Mechanism, t, q, qd, pts: Float[Array, "K 3"], vel: Float
         u = d / ell[:, None]
         f = mech.spring_stiffness * (ell - mech.spring_free_length) + \
             mech.spring_damping * jnp.sum(u * (vel[a] - vel[b]), axis=1)
-        f_pts = f_pts.at[a].add(-f[:, None] * u).at[b].add(f[:, None] * u)
+        idx += [a, b]
+        fs += [-f[:, None] * u, f[:, None] * u]
     if topo.tyre_names:
         k = np.asarray(topo.tyre_points, dtype=int)
         n = jnp.asarray(topo.tyre_normals, dtype=pts.dtype)
@@ -83,11 +85,22 @@ def point_forces(mech: Mechanism, t, q, qd, pts: Float[Array, "K 3"], vel: Float
         touching = dist < 0.0 if contact is None else contact
         f = jnp.where(touching, -(mech.tyre_stiffness * dist + mech.tyre_damping * jnp.sum(vel[k] * n, axis=1)),
                       0.0)
-        at = np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k
-        f_pts = f_pts.at[at].add(f[:, None] * n)
+        idx.append(np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k)
+        fs.append(f[:, None] * n)
     for ap in forces_applied:
-        f_pts = f_pts.at[ap.point].add(ap.fn(t, q, qd))
-    return f_pts
+        idx.append(np.asarray([ap.point], dtype=int))
+        fs.append(jnp.reshape(ap.fn(t, q, qd), (1, 3)).astype(pts.dtype))
+    return np.concatenate(idx), jnp.concatenate(fs)
+
+
+def point_forces(mech: Mechanism, t, q, qd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"], contact=None):
+    """Cartesian force on every point from springs, tyres and applied forces, ``(K, 3)``; ``None`` if the
+    mechanism has none of them (:func:`point_force_terms`, summed per point)."""
+    terms = point_force_terms(mech, t, q, qd, pts, vel, contact)
+    if terms is None:
+        return None
+    idx, f = terms
+    return jnp.zeros_like(pts).at[idx].add(f)
 
 
 def generalized_point_forces(wk: Float[Array, "K F"], f_pts: Float[Array, "K 3"]) -> Float[Array, " 3F"]:
