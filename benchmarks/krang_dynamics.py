@@ -177,7 +177,7 @@ def run() -> dict:
         return jax.lax.scan(step, q, None, length=1000)[0]
 
     chained, _ = _compile(chain, jq[0], jqd[0], jtau[0])
-    t = median_time(lambda: chained(jq[0], jqd[0], jtau[0]), number=1, block=jax.block_until_ready) / 1000
+    t = median_time(lambda: chained(q1, qd1, tau1), number=1, block=jax.block_until_ready) / 1000
     rows.append(_row("ours forward_dynamics (in a compiled scan, no dispatch)", t, "per call"))
     floor, _ = _compile(lambda q: q + 1.0, jq[0])
     t = median_time(lambda: floor(q1).block_until_ready(), number=200)
@@ -247,11 +247,13 @@ def run() -> dict:
     t_aba = median_time(aba_all, number=1) / BATCH
     rows.append(_row("Pinocchio ABA (C++, one call per state from Python)", t_aba, "per call"))
     # One state inside a compiled scan against pin.aba, interleaved lap by lap (the two rows above are measured
-    # moments apart, while the shared machine drifts by 10 % and more): per lap, 1000 scan steps, then 1024 pin.aba.
+    # minutes apart, with other programs run between them, while the shared machine drifts by 10 % and more): per lap,
+    # 1000 scan steps, then 1024 pin.aba. pin.aba's time includes its Python call (8.3-8.4 us per call here against
+    # abaInParallel's 5.7 us per state on one thread): the goal's measure, not the C++ ABA alone.
     scan_laps = []
     for _ in range(INTERLEAVED_LAPS):
         t0 = time.perf_counter()
-        jax.block_until_ready(chained(jq[0], jqd[0], jtau[0]))
+        jax.block_until_ready(chained(q1, qd1, tau1))
         t_scan = (time.perf_counter() - t0) / 1000
         t0 = time.perf_counter()
         aba_all()
@@ -388,7 +390,8 @@ def run() -> dict:
         "batched_lap_ratios_quartiles": lap_ratios,
         "scan_vs_pin_aba_lap_ratios_quartiles": [float(np.percentile(scan_laps, p)) for p in (25, 50, 75)],
         "max_rel_qdd_diff_ours_one_core_vs_abaInParallel": err_one_core,
-        "targets": {"batched_vs_aba": 1.0, "single_vs_aba": 3.0, "compile_s": 5.0},
+        "targets": {"batched_vs_abaInParallel": 1.0, "scan_vs_pin_aba": 1.5, "single_call_vs_floor": 1.5,
+                    "compile_s": 5.0},
     }
 
 

@@ -120,7 +120,6 @@ class PinocchioOracle:
         ref = pin.LOCAL if local else pin.LOCAL_WORLD_ALIGNED
         return pin.getFrameJacobian(self.model, self.data, self.model.getFrameId(link), ref)[:, self.idx]
 
-
     def placement(self, q, link):
         """The world rotation and origin of ``link``'s frame."""
         qp, _ = self._qv(q)

@@ -57,9 +57,12 @@ def _forces(mech: Mechanism, prep: Prepared, t, q, qd, contact=None):
     topo = mech.topo
     terms = None
     if topo.spring_names or topo.tyre_names or any(isinstance(ap, AppliedForce) for ap in mech.applied):
-        pts = prep.wk @ q.reshape(-1, 3) + prep.p0
-        vel = prep.wk @ qd.reshape(-1, 3)
-        terms = point_force_terms(mech, t, q, qd, pts, vel, contact)
+        x, xd = q.reshape(-1, 3), qd.reshape(-1, 3)
+
+        def read(i):  # the points' rows of W (constant gathers) times the particles: the read points only
+            return _mm(prep.wk[i], x) + prep.p0[i], _mm(prep.wk[i], xd)
+
+        terms = point_force_terms(mech, t, q, qd, read, contact)
     return terms, torque_forces(mech, t, q, qd)
 
 

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ..errors import ModelError
 from ..spatial import frame_from_points, unskew
 from ._algebra import lumped_masses
 from .model import AppliedForce, AppliedTorque, BodyLoad, Mechanism
@@ -58,11 +59,12 @@ def tyre_deflections(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, 
     return jnp.sum(pts[k] * n, axis=1) - mech.tyre_ground - mech.tyre_radius
 
 
-def point_force_terms(mech: Mechanism, t, q, qd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"], contact=None):
+def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
     """The point forces of springs, tyres and applied forces as ``(idx, f)``: forces ``f`` (P, 3) on the points
     ``idx`` (P,), a static index array that may repeat points (the caller sums them); ``None`` if the mechanism has
-    none of them. ``contact`` (T,) fixes each tyre's law (in contact or not) instead of reading it from the sign of
-    its deflection: the smooth branch of an evented rollout (:mod:`.events`)."""
+    none of them. ``read(idx)`` returns the positions and velocities ``(len(idx), 3)`` of the points ``idx`` (static),
+    so that only the points the forces read are computed. ``contact`` (T,) fixes each tyre's law (in contact or not)
+    instead of reading it from the sign of its deflection: the smooth branch of an evented rollout (:mod:`.events`)."""
     topo = mech.topo
     forces_applied = [ap for ap in mech.applied if isinstance(ap, AppliedForce)]
     if not (topo.spring_names or topo.tyre_names or forces_applied):
@@ -71,32 +73,38 @@ def point_force_terms(mech: Mechanism, t, q, qd, pts: Float[Array, "K 3"], vel: 
     if topo.spring_names:
         ab = np.asarray(topo.spring_points, dtype=int)
         a, b = ab[:, 0], ab[:, 1]
-        d = pts[a] - pts[b]
+        (pa, va), (pb, vb) = read(a), read(b)
+        d = pa - pb
         ell = jnp.linalg.norm(d, axis=1)
         u = d / ell[:, None]
-        f = mech.spring_stiffness * (ell - mech.spring_free_length) + \
-            mech.spring_damping * jnp.sum(u * (vel[a] - vel[b]), axis=1)
+        f = (mech.spring_stiffness * (ell - mech.spring_free_length)
+             + mech.spring_damping * jnp.sum(u * (va - vb), axis=1))
         idx += [a, b]
         fs += [-f[:, None] * u, f[:, None] * u]
     if topo.tyre_names:
         k = np.asarray(topo.tyre_points, dtype=int)
-        n = jnp.asarray(topo.tyre_normals, dtype=pts.dtype)
-        dist = jnp.sum(pts[k] * n, axis=1) - mech.tyre_ground - mech.tyre_radius
+        pk, vk = read(k)
+        n = jnp.asarray(topo.tyre_normals, dtype=pk.dtype)
+        dist = jnp.sum(pk * n, axis=1) - mech.tyre_ground - mech.tyre_radius
         touching = dist < 0.0 if contact is None else contact
-        f = jnp.where(touching, -(mech.tyre_stiffness * dist + mech.tyre_damping * jnp.sum(vel[k] * n, axis=1)),
-                      0.0)
+        f = jnp.where(touching, -(mech.tyre_stiffness * dist + mech.tyre_damping * jnp.sum(vk * n, axis=1)), 0.0)
         idx.append(np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k)
         fs.append(f[:, None] * n)
     for ap in forces_applied:
+        f = jnp.asarray(ap.fn(t, q, qd))
+        if f.shape != (3,):
+            raise ModelError(f"applied force '{ap.name}' must return a force of shape (3,) (global x, y, z), got "
+                             f"shape {f.shape}")
         idx.append(np.asarray([ap.point], dtype=int))
-        fs.append(jnp.reshape(ap.fn(t, q, qd), (1, 3)).astype(pts.dtype))
-    return np.concatenate(idx), jnp.concatenate(fs)
+        fs.append(f[None])
+    dtype = jnp.result_type(*fs)
+    return np.concatenate(idx), jnp.concatenate([f.astype(dtype) for f in fs])
 
 
 def point_forces(mech: Mechanism, t, q, qd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"], contact=None):
     """Cartesian force on every point from springs, tyres and applied forces, ``(K, 3)``; ``None`` if the
     mechanism has none of them (:func:`point_force_terms`, summed per point)."""
-    terms = point_force_terms(mech, t, q, qd, pts, vel, contact)
+    terms = point_force_terms(mech, t, q, qd, lambda i: (pts[i], vel[i]), contact)
     if terms is None:
         return None
     idx, f = terms

@@ -35,7 +35,8 @@ __all__ = [
 
 
 def _mm(a, b):
-    """Small matrix product (3x3, 3x4 by 4x4) as a broadcast sum: fuses with its neighbours on CPU (tiny ``dot`` ops do not)."""
+    """Small matrix product (3x3, 3x4 by 4x4) as a broadcast sum: fuses with its neighbours on CPU (tiny ``dot`` ops
+    do not)."""
     return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
 
 

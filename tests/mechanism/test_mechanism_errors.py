@@ -75,3 +75,20 @@ def test_massless_direction_is_refused(four_bar):
     mb.link("A", "bob", name="string")
     with pytest.raises(ModelError, match="carries no mass"):
         mb.build()
+
+
+def test_applied_force_of_the_wrong_shape_is_named():
+    """An applied force whose function returns other than 3 numbers is refused when traced, naming it (it used to
+    fail inside JAX's broadcasting with no name)."""
+    import jax.numpy as jnp
+
+    from particlesim.mechanism import accelerations
+
+    mb = MechanismBuilder(planar=True)
+    mb.ground("O", (0.0, 0.0))
+    mb.particle("A", (1.0, 0.0))
+    mb.rod("r", "O", "A", mass=1.0)
+    mb.applied_force("push", "A", lambda t, q, qd: jnp.array([1.0, 0.0]))
+    mech, q0 = mb.build(dof=1)
+    with pytest.raises(ModelError, match=r"applied force 'push' must return a force of shape \(3,\).*got shape \(2,\)"):
+        accelerations(mech, 0.0, q0, 0 * q0)

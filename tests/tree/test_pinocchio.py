@@ -1,10 +1,9 @@
 """M, C qd, g and frame Jacobians against Pinocchio on the Krang URDFs and on seeded random trees."""
 
-import numpy as np
-import pytest
-
 import jax
 import jax.numpy as jnp
+import numpy as np
+import pytest
 
 from particlesim.tree import coriolis_times_qdot, link_poses
 from particlesim.io import load_urdf

@@ -89,3 +89,35 @@ def test_jacobian_matches_differentiated_poses(small_tree):
         assert max_rel(jac @ qd, jnp.concatenate([pdot, w])) <= EXACT_RTOL
         local = link_jacobian(small_tree, q, j, frame="local")
         assert max_rel(local @ qd, jnp.concatenate([r.T @ pdot, r.T @ w])) <= EXACT_RTOL
+
+
+def test_link_poses_equal_the_link_by_link_products():
+    """The pointer-jumping composition of :func:`link_poses` against the plain recursion ``R_i = R_parent R_rel``,
+    ``p_i = p_parent + R_parent p_rel`` over :func:`joint_transforms`, on a hand-built forest with a free root, a ball
+    joint, prismatic and revolute joints and parents listed after their children."""
+    from particlesim.tree import TreeModel
+    from particlesim.tree.kinematics import joint_transforms
+
+    rng = np.random.default_rng(5)
+    parents = [3, -1, 4, 1, 1, 0, -1, 6]
+    kinds = ["revolute", "free", "prismatic", "ball", "revolute", "revolute", "prismatic", "revolute"]
+    axes = rng.normal(size=(8, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    rots = np.stack([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(8)])
+    rots *= np.linalg.det(rots)[:, None, None]
+    model = TreeModel(parents=parents, kinds=kinds, axes=axes, origin_rotations=rots,
+                      origin_xyz=rng.uniform(-0.5, 0.5, (8, 3)),
+                      inertia=np.tile([1.0, 0, 0, 0, 1, 0, 0, 1, 0, 1], (8, 1)),
+                      joint_names=[f"j{i}" for i in range(8)], gravity=(0.0, 0.0, -9.81))
+    for seed in SEEDS:
+        q = rng.uniform(-1.5, 1.5, model.nq)
+        r_rel, p_rel = (np.asarray(x) for x in joint_transforms(model, jnp.asarray(q)))
+        rot, pos = (np.asarray(x) for x in link_poses(model, jnp.asarray(q)))
+        r_ref, p_ref = [None] * 8, [None] * 8
+        while any(r is None for r in r_ref):
+            for i, k in enumerate(parents):
+                if r_ref[i] is None and (k < 0 or r_ref[k] is not None):
+                    r_ref[i] = r_rel[i] if k < 0 else r_ref[k] @ r_rel[i]
+                    p_ref[i] = p_rel[i] if k < 0 else p_ref[k] + r_ref[k] @ p_rel[i]
+        assert max_rel(rot, np.stack(r_ref)) <= EXACT_RTOL
+        assert max_rel(pos, np.stack(p_ref)) <= EXACT_RTOL
