@@ -64,7 +64,8 @@ def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
     ``idx`` (P,), a static index array that may repeat points (the caller sums them); ``None`` if the mechanism has
     none of them. ``read(idx)`` returns the positions and velocities ``(len(idx), 3)`` of the points ``idx`` (static),
     so that only the points the forces read are computed. ``contact`` (T,) fixes each tyre's law (in contact or not)
-    instead of reading it from the sign of its deflection: the smooth branch of an evented rollout (:mod:`.events`)."""
+    instead of reading it from the sign of its deflection: the smooth branch of an evented rollout (:mod:`.events`).
+    An applied force whose function does not return shape (3,) raises ``ModelError`` naming it."""
     topo = mech.topo
     forces_applied = [ap for ap in mech.applied if isinstance(ap, AppliedForce)]
     if not (topo.spring_names or topo.tyre_names or forces_applied):
@@ -91,19 +92,26 @@ def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
         idx.append(np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k)
         fs.append(f[:, None] * n)
     for ap in forces_applied:
-        f = jnp.asarray(ap.fn(t, q, qd))
-        if f.shape != (3,):
-            raise ModelError(f"applied force '{ap.name}' must return a force of shape (3,) (global x, y, z), got "
-                             f"shape {f.shape}")
         idx.append(np.asarray([ap.point], dtype=int))
-        fs.append(f[None])
+        fs.append(applied_vector(ap, t, q, qd)[None])
     dtype = jnp.result_type(*fs)
     return np.concatenate(idx), jnp.concatenate([f.astype(dtype) for f in fs])
 
 
+def applied_vector(ap, t, q, qd) -> Float[Array, "3"]:
+    """``ap.fn(t, q, qd)`` of an applied force or torque, refused (naming it) unless it has shape (3,)."""
+    v = jnp.asarray(ap.fn(t, q, qd))
+    if v.shape != (3,):
+        kind = "force" if isinstance(ap, AppliedForce) else "torque"
+        raise ModelError(f"applied {kind} '{ap.name}' must return a {kind} of shape (3,) (global x, y, z), got "
+                         f"shape {v.shape}")
+    return v
+
+
 def point_forces(mech: Mechanism, t, q, qd, pts: Float[Array, "K 3"], vel: Float[Array, "K 3"], contact=None):
     """Cartesian force on every point from springs, tyres and applied forces, ``(K, 3)``; ``None`` if the
-    mechanism has none of them (:func:`point_force_terms`, summed per point)."""
+    mechanism has none of them (:func:`point_force_terms`, summed per point; ``contact`` as there: each tyre's law
+    fixed instead of read from its deflection's sign)."""
     terms = point_force_terms(mech, t, q, qd, lambda i: (pts[i], vel[i]), contact)
     if terms is None:
         return None
@@ -214,7 +222,7 @@ def torque_forces(mech: Mechanism, t, q, qd):
             gen = gen + body_load_forces(mech, ap, t, q, qd)
             continue
         _, pull = jax.vjp(lambda v, b=ap.body: body_angular_velocity(mech, b, q, v), qd)
-        gen = gen + pull(ap.fn(t, q, qd))[0]
+        gen = gen + pull(applied_vector(ap, t, q, qd).astype(q.dtype))[0]
     return gen
 
 

@@ -208,7 +208,7 @@ def body_reactions(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, 
     from ..particles import primary_mass_matrix
     from .constraints import point_weights, points
     from .dynamics import accelerations_and_multipliers
-    from .forces import point_forces
+    from .forces import applied_vector, point_forces
 
     topo = mech.topo
     _check_state(mech, q, "q")
@@ -262,7 +262,7 @@ def body_reactions(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, 
                 if wrench is not None:
                     r_b = r_b - primary_load_forces(mech, bi, q, *wrench)
             if isinstance(ap, AppliedTorque) and ap.body == bi:
-                r_b = r_b - primary_load_forces(mech, bi, q, jnp.zeros(3, q.dtype), ap.fn(t, q, qd))
+                r_b = r_b - primary_load_forces(mech, bi, q, jnp.zeros(3, q.dtype), applied_vector(ap, t, q, qd))
         for r, bodies in owners.items():
             if bi not in bodies:
                 continue

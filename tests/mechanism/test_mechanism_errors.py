@@ -1,4 +1,5 @@
-"""Bad mechanisms are refused at build time with a message naming the culprit."""
+"""Bad mechanisms are refused with a message naming the culprit: at build time, or when traced (applied loads
+whose functions return the wrong shape)."""
 
 import numpy as np
 import pytest
@@ -92,3 +93,24 @@ def test_applied_force_of_the_wrong_shape_is_named():
     mech, q0 = mb.build(dof=1)
     with pytest.raises(ModelError, match=r"applied force 'push' must return a force of shape \(3,\).*got shape \(2,\)"):
         accelerations(mech, 0.0, q0, 0 * q0)
+
+
+def test_applied_torque_of_the_wrong_shape_is_named():
+    """The same for an applied torque, in the dynamics and in the body reactions."""
+    import jax.numpy as jnp
+
+    from particlesim.mechanism import accelerations
+    from particlesim.mechanism.outputs import body_reactions
+
+    mb = MechanismBuilder(planar=True)
+    mb.ground("O", (0.0, 0.0))
+    mb.particle("A", (1.0, 0.0))
+    mb.particle("B", (0.0, 1.0))
+    mb.planar_body("plate", mass=1.0, moment=0.2, com=(0.3, 0.3), primaries=["O", "A", "B"])
+    mb.applied_torque("twist", "plate", lambda t, q, qd: jnp.array([0.0, 1.0]))
+    mech, q0 = mb.build(dof=1)
+    match = r"applied torque 'twist' must return a torque of shape \(3,\).*got shape \(2,\)"
+    with pytest.raises(ModelError, match=match):
+        accelerations(mech, 0.0, q0, 0 * q0)
+    with pytest.raises(ModelError, match=match):
+        body_reactions(mech, 0.0, q0, 0 * q0)
