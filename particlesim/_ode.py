@@ -425,7 +425,8 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
     dense output (so the event time is a differentiable function of parameters and state, by the implicit
     function theorem); the element's law flips there (with any other already across) and the next segment starts
     from the event state (projected, if ``projection`` is given). ``max_events + 1`` segments at most (one
-    ``lax.scan``, so every adjoint differentiates it); a run with more switches fails. Returns ``(ts, ys, steps, rejected, result, ok, events)``.
+    ``lax.scan``, so every adjoint differentiates it); a run with more switches fails. Returns ``(ts, ys, steps,
+    rejected, result, ok, events)``.
     """
     solver, controller = _solver_and_controller(cfg, rtol, atol, projection)
     own, diffrax_throws = _who_throws(cfg)

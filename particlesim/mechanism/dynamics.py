@@ -77,8 +77,7 @@ def _solve(mech: Mechanism, prep: Prepared, t, q, qd, baumgarte: float, contact=
             baumgarte**2 * residual(prep, mech.dot_kappa, r, q)
     terms, q_torque = _forces(mech, prep, t, q, qd, contact)
     if mech.topo.saddle_point:
-        f_pts = None if terms is None else jnp.zeros_like(prep.p0).at[terms[0]].add(terms[1])
-        return _solve_kkt(prep, r, g, f_pts, q_torque, mech.topo.least_squares)
+        return _solve_kkt(prep, r, g, terms, q_torque, mech.topo.least_squares)
     minv_q = prep.minv_qg
     if terms is not None:  # only the loaded points' columns of M^-1 W^T (a constant gather), no scatter
         minv_q = minv_q + prep.mwk[:, terms[0]] @ terms[1]
@@ -93,12 +92,13 @@ def _solve(mech: Mechanism, prep: Prepared, t, q, qd, baumgarte: float, contact=
     return (minv_q - apply_minv_jt(prep, r, lam)).reshape(-1), lam
 
 
-def _solve_kkt(prep: Prepared, r, g, f_pts, q_torque, least_squares: bool = False):
+def _solve_kkt(prep: Prepared, r, g, terms, q_torque, least_squares: bool = False):
     """The full saddle-point system by LU (any mechanism, ``M`` singular included); with ``least_squares`` the
-    multiplier block is damped (``-mu I``) and refined against the undamped system (minimum-norm multipliers)."""
+    multiplier block is damped (``-mu I``) and refined against the undamped system (minimum-norm multipliers).
+    ``terms``: the point forces as :func:`~.forces.point_force_terms` gives them (or None)."""
     q = prep.qg.reshape(-1)
-    if f_pts is not None:
-        q = q + generalized_point_forces(prep.wk, f_pts)
+    if terms is not None:  # W^T F over the loaded points' rows of W only
+        q = q + generalized_point_forces(prep.wk[terms[0]], terms[1])
     if q_torque is not None:
         q = q + q_torque
     j = jacobian(prep, r)

@@ -53,10 +53,13 @@ def body_angular_velocity(mech: Mechanism, b: int, q, qd) -> Float[Array, "3"]:
 
 def tyre_deflections(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, " T"]:
     """Height of every tyre's measuring point above its ground plane minus its radius (negative: in contact)."""
-    topo = mech.topo
-    k = np.asarray(topo.tyre_points, dtype=int)
-    n = jnp.asarray(topo.tyre_normals, dtype=pts.dtype)
-    return jnp.sum(pts[k] * n, axis=1) - mech.tyre_ground - mech.tyre_radius
+    return _tyre_gaps(mech, pts[np.asarray(mech.topo.tyre_points, dtype=int)])
+
+
+def _tyre_gaps(mech: Mechanism, at: Float[Array, "T 3"]) -> Float[Array, " T"]:
+    """Every tyre's height above its ground plane minus its radius, from its measuring points' positions ``at``."""
+    n = jnp.asarray(mech.topo.tyre_normals, dtype=at.dtype)
+    return jnp.sum(at * n, axis=1) - mech.tyre_ground - mech.tyre_radius
 
 
 def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
@@ -86,7 +89,7 @@ def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
         k = np.asarray(topo.tyre_points, dtype=int)
         pk, vk = read(k)
         n = jnp.asarray(topo.tyre_normals, dtype=pk.dtype)
-        dist = jnp.sum(pk * n, axis=1) - mech.tyre_ground - mech.tyre_radius
+        dist = _tyre_gaps(mech, pk)
         touching = dist < 0.0 if contact is None else contact
         f = jnp.where(touching, -(mech.tyre_stiffness * dist + mech.tyre_damping * jnp.sum(vk * n, axis=1)), 0.0)
         idx.append(np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k)
