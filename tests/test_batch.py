@@ -3,12 +3,14 @@
 The 8-device case runs in a subprocess: the number of CPU host devices is fixed when JAX starts
 (``XLA_FLAGS=--xla_force_host_platform_device_count=8``), and this test process has already started with one.
 
-Sharded against unsharded: the integer step counts agree exactly and the states agree to SHARD_RTOL relative to
-the batch's largest value. Not to the last bit: XLA compiles the per-device program (a batch of 2 inside
-``shard_map``) separately from the whole-batch program (a batch of 16), and the two round differently (vectorised
-loops and multiply-add contraction differ by an ulp per operation), which the dynamics carry along the rollout.
-The same size of difference separates a single jitted rollout from the same member inside the vmapped batch
-(measured 1.3e-12 absolute on velocities of 7 rad/s), so sharding adds nothing beyond what batching does.
+Sharded against unsharded: the batch split over 8 devices (2 members each) equals, bit for bit, the same batch
+on one device looped in chunks of 2 (``chunk=2``): each member sees exactly the same operations whichever device
+runs its slice. Against the whole batch vectorised at once (a batch of 16 in one program) the integer step counts
+agree exactly and the states to round-off only: XLA rounds a vectorised batch of 16 differently from one of 2 (an
+ulp per operation), which the dynamics carry along the rollout. That batching difference is what
+``test_batch_of_parameter_sets_equals_single_rollouts`` bounds (LOOP_RTOL). Here it is printed, not asserted: over
+0.2 s of these falling arms it ranged 8e-14 to 1.1e-12 relative across seeds and across pose formulations that agree
+to 4e-15 on one state, so a fixed bound on it tests the seed's trajectory rather than the split.
 """
 
 import json
@@ -27,7 +29,6 @@ from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
 
-SHARD_RTOL = 1e-12  # sharded vs unsharded batch, relative to the largest |value| of the batch (measured 3e-13)
 LOOP_RTOL = 1e-12  # a member of the batch vs the same rollout alone (measured 2e-13)
 GRAVITY = (0.0, -9.81, 0.0)
 URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
@@ -36,7 +37,7 @@ SCRIPT = textwrap.dedent("""
     import json, os, sys
     import jax, jax.numpy as jnp, numpy as np
     import particlesim
-    from particlesim.batch import param_axes, sharded_vmap
+    from particlesim.batch import batch_mesh, param_axes, sharded_vmap
     from particlesim.data import data_dir
     from particlesim.simulate import simulate
     from particlesim.io import load_urdf
@@ -56,6 +57,7 @@ SCRIPT = textwrap.dedent("""
 
     plain = jax.jit(jax.vmap(rollout, in_axes=axes))(models, q0, qd0)
     sharded = sharded_vmap(rollout, axes)(models, q0, qd0)
+    looped = sharded_vmap(rollout, axes, mesh=batch_mesh(jax.devices()[:1]), chunk=B // 8)(models, q0, qd0)
     try:
         sharded_vmap(rollout, axes)(models.with_params(inertia=models.inertia[:12]),
                                     q0[:12], qd0[:12])
@@ -64,7 +66,9 @@ SCRIPT = textwrap.dedent("""
         uneven = str(e)
     out = {"devices": len(jax.devices()),
            "shard_devices": len(sharded[0].sharding.device_set),
-           "bitwise": [bool(np.array_equal(np.asarray(a), np.asarray(b))) for a, b in zip(plain, sharded)],
+           "looped_devices": len(looped[0].sharding.device_set),
+           "bitwise_looped": [bool(np.array_equal(np.asarray(a), np.asarray(b))) for a, b in zip(looped, sharded)],
+           "bitwise_plain": [bool(np.array_equal(np.asarray(a), np.asarray(b))) for a, b in zip(plain, sharded)],
            "q_diff": float(np.max(np.abs(np.asarray(plain[0]) - np.asarray(sharded[0])))),
            "qd_diff": float(np.max(np.abs(np.asarray(plain[1]) - np.asarray(sharded[1])))),
            "q_scale": float(np.max(np.abs(np.asarray(plain[0])))),
@@ -93,9 +97,11 @@ def test_sharded_batch_on_eight_host_devices_equals_unsharded():
     r = json.loads(line[len("RESULT"):])
     print(r)
     assert r["devices"] == 8 and r["shard_devices"] == 8  # the batch really was split over 8 devices
-    assert r["steps_plain"] == r["steps_sharded"]  # every member took exactly the same steps
-    assert r["q_diff"] <= SHARD_RTOL * r["q_scale"]
-    assert r["qd_diff"] <= SHARD_RTOL * r["qd_scale"]
+    assert r["looped_devices"] == 1
+    assert r["bitwise_looped"] == [True, True, True]  # q, qd and step counts: the split changes no operation
+    assert r["steps_plain"] == r["steps_sharded"]  # vectorised whole: every member took exactly the same steps
+    print(f"whole batch vectorised against sharded: q {r['q_diff'] / r['q_scale']:.1e}, "
+          f"qd {r['qd_diff'] / r['qd_scale']:.1e} relative (batching round-off; bounded by LOOP_RTOL's test)")
     assert "does not split evenly over 8 devices" in r["uneven"]
 
 
