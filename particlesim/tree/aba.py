@@ -132,9 +132,11 @@ def batch_lanes(per: int, n_links: int = 0) -> int:
 
 #: One state of a tree up to :data:`UNROLL_LINKS` links takes the sweeps rather than composite inertias and a Cholesky
 #: solve when its links lie deeper than this on average (the mean depth is the mass matrix's nonzeros per row below
-#: and on the diagonal, which the composite-inertia path pays for and the sweeps do not). Interleaved inside a scan:
-#: serial chains of 18-32 links (mean depth 9.5-16.5) run 1.3-1.6x faster on the sweeps; Krang (18 links, mean depth
-#: 6.0) 1.6x faster on composite inertias.
+#: and on the diagonal, which the composite-inertia path pays for and the sweeps do not). Inside a compiled loop, with
+#: link poses composed by pointer jumping (:func:`~.kinematics.link_poses`): serial revolute chains of 8-32 links
+#: (mean depth 4.5-16.5) run 1.0-1.13x faster on the sweeps (1.3-1.6x at 18-32 links before the poses were), Krang
+#: (18 links, mean depth 6.0) 2x faster on composite inertias (11.6 against 23 us): the bound sits where the two
+#: meet for chains.
 ONE_STATE_SWEEPS_DEPTH = 8.0
 
 

@@ -35,7 +35,8 @@ __all__ = [
 
 
 def _mm(a, b):
-    """3x3 matrix product as a broadcast sum: fuses with its neighbours on CPU (tiny ``dot`` ops do not)."""
+    """Small matrix product (3x3, 3x4 by 4x4) as a broadcast sum: fuses with its neighbours on CPU (tiny ``dot`` ops
+    do not)."""
     return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
 
 
@@ -87,19 +88,42 @@ def _quaternion_checks(model: TreeModel, arrays: dict) -> None:
             model.check_quaternions_nonzero(q)
 
 
+@functools.lru_cache(maxsize=64)
+def _ancestor_rounds(parents: tuple) -> tuple[np.ndarray, ...]:
+    """The rounds of :func:`link_poses`' composition by pointer jumping: in round ``r`` each link's pose so far (its
+    pose relative to its ancestor ``2^r`` generations up) is composed with that ancestor's, ``n`` standing for the
+    world; ceil(log2(depth)) rounds for a tree ``depth`` links deep."""
+    n = len(parents)
+    anc = np.asarray([p if p >= 0 else n for p in parents] + [n], dtype=np.int32)
+    rounds = []
+    while (anc[:n] < n).any():
+        rounds.append(anc[:n].copy())
+        anc = anc[anc]
+    return tuple(rounds)
+
+
 @compiled("link_poses", check=_quaternion_checks, arrays_only=True)
 def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
-    """World poses ``(R (n,3,3), p (n,3))`` of all link frames (forward kinematics, parents first)."""
+    """World poses ``(R (n,3,3), p (n,3))`` of all link frames (forward kinematics).
+
+    Composed by pointer jumping over the tree (:func:`_ancestor_rounds`): every round composes all links at once with
+    the pose of an ancestor twice as far up, so a tree of depth ``d`` takes about log2(d) vectorised rounds instead of
+    one small product per link. Krang (18 links, 10 deep): 4 rounds instead of 17 link-by-link products; its
+    one-state forward dynamics inside a compiled loop took 13.6-14.1 us before, 11.6-11.7 us after (XLA's CPU runtime
+    pays for every kernel it dispatches: 80 kernels became 37), 4 states vmapped inside a loop 9.6 -> 9.1 us per
+    state, but 1024 vmapped at once 18 -> 21 us per state (there the rounds' extra arithmetic shows; a batch passed
+    to :func:`~.dynamics.forward_dynamics` takes the articulated-body sweeps instead). Each round multiplies the
+    ancestors' ``[R | p]`` (3 x 4) by the links' homogeneous 4 x 4 transforms: square 4 x 4 throughout ran 11.8 us for
+    one state but 19.4 us per state vmapped by 4; ``R`` and ``p`` composed separately, 12.5 and 10.0 us."""
     r_rel, p_rel = joint_transforms(model, q)
-    rs, ps = [None] * model.n_joints, [None] * model.n_joints
-    for i in model.topological_order:
-        k = model.parents[i]
-        if k < 0:
-            rs[i], ps[i] = r_rel[i], p_rel[i]
-        else:
-            rs[i] = _mm(rs[k], r_rel[i])
-            ps[i] = ps[k] + _mv(rs[k], p_rel[i])
-    return jnp.stack(rs), jnp.stack(ps)
+    n = r_rel.shape[0]
+    t = jnp.concatenate([r_rel, p_rel[:, :, None]], axis=2)  # [R | p] (n, 3, 4)
+    # the gathered table's last entry is the world; the links' transforms get the homogeneous row [0 0 0 1]
+    world = jnp.concatenate([jnp.eye(3, dtype=t.dtype), jnp.zeros((3, 1), t.dtype)], axis=1)[None]
+    last = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 0.0, 1.0], t.dtype), (n, 1, 4))
+    for anc in _ancestor_rounds(tuple(model.parents)):
+        t = _mm(jnp.concatenate([t, world])[anc], jnp.concatenate([t, last], axis=1))
+    return t[:, :, :3], t[:, :, 3]
 
 
 @compiled("link_velocities", check=_quaternion_checks, arrays_only=True)
