@@ -135,8 +135,8 @@ def batch_lanes(per: int, n_links: int = 0) -> int:
 #: and on the diagonal, which the composite-inertia path pays for and the sweeps do not). Inside a compiled loop, with
 #: link poses composed by pointer jumping (:func:`~.kinematics.link_poses`): serial revolute chains of 8-32 links
 #: (mean depth 4.5-16.5) run 1.0-1.13x faster on the sweeps (1.3-1.6x at 18-32 links before the poses were), Krang
-#: (18 links, mean depth 6.0) 2x faster on composite inertias (11.6 against 23 us): the bound sits where the two
-#: meet for chains.
+#: (18 links, mean depth 6.0) 2x faster on composite inertias (11.6 against 23 us). Below depth 8 the chains gain
+#: little (1.0-1.1x) and branched trees like Krang lose much, so the bound stays at 8.
 ONE_STATE_SWEEPS_DEPTH = 8.0
 
 
