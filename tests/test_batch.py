@@ -4,13 +4,16 @@ The 8-device case runs in a subprocess: the number of CPU host devices is fixed 
 (``XLA_FLAGS=--xla_force_host_platform_device_count=8``), and this test process has already started with one.
 
 Sharded against unsharded: the batch split over 8 devices (2 members each) equals, bit for bit, the same batch
-on one device looped in chunks of 2 (``chunk=2``): each member sees exactly the same operations whichever device
-runs its slice. Against the whole batch vectorised at once (a batch of 16 in one program) the integer step counts
-agree exactly and the states to round-off only: XLA rounds a vectorised batch of 16 differently from one of 2 (an
-ulp per operation), which the dynamics carry along the rollout. That batching difference is what
-``test_batch_of_parameter_sets_equals_single_rollouts`` bounds (LOOP_RTOL). Here it is printed, not asserted: over
-0.2 s of these falling arms it ranged 8e-14 to 1.1e-12 relative across seeds and across pose formulations that agree
-to 4e-15 on one state, so a fixed bound on it tests the seed's trajectory rather than the split.
+on one device looped in chunks of 2 (``chunk=2``): each member sees the same operations whichever device runs its
+slice. (XLA compiles the two per-slice programs alike today; it does not promise to, so a failure after an XLA
+upgrade could be that rather than the split.) Against the whole batch vectorised at once (a batch of 16 in one
+program, under the caller's jit with XLA's default options) the step counts agree exactly and the states to
+WHOLE_BATCH_RTOL. That bound was 1e-12 until the link poses were composed by pointer jumping, which moved this
+seed's velocities from 4.7e-13 to 1.1e-12 relative (its other seeds: at most 3.2e-13 against 4.7e-13). The
+difference is batching round-off carried along 0.2 s of falling arms: a vectorised batch of 16 rounds differently
+from one of 2, and with both compiled with the same options the link-by-link poses give 1.1e-12 on this seed too
+(six seeds 8e-14 to 1.1e-12). The split itself is what the bitwise check tests; the bound now guards against a
+member's rollout changing, at 1e-10, about 100 times the round-off seen and far below any modelling error.
 """
 
 import json
@@ -29,6 +32,7 @@ from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
 
+WHOLE_BATCH_RTOL = 1e-10  # whole vectorised batch vs sharded, relative to the batch's largest |value| (see above)
 LOOP_RTOL = 1e-12  # a member of the batch vs the same rollout alone (measured 2e-13)
 GRAVITY = (0.0, -9.81, 0.0)
 URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
@@ -68,7 +72,6 @@ SCRIPT = textwrap.dedent("""
            "shard_devices": len(sharded[0].sharding.device_set),
            "looped_devices": len(looped[0].sharding.device_set),
            "bitwise_looped": [bool(np.array_equal(np.asarray(a), np.asarray(b))) for a, b in zip(looped, sharded)],
-           "bitwise_plain": [bool(np.array_equal(np.asarray(a), np.asarray(b))) for a, b in zip(plain, sharded)],
            "q_diff": float(np.max(np.abs(np.asarray(plain[0]) - np.asarray(sharded[0])))),
            "qd_diff": float(np.max(np.abs(np.asarray(plain[1]) - np.asarray(sharded[1])))),
            "q_scale": float(np.max(np.abs(np.asarray(plain[0])))),
@@ -100,8 +103,8 @@ def test_sharded_batch_on_eight_host_devices_equals_unsharded():
     assert r["looped_devices"] == 1
     assert r["bitwise_looped"] == [True, True, True]  # q, qd and step counts: the split changes no operation
     assert r["steps_plain"] == r["steps_sharded"]  # vectorised whole: every member took exactly the same steps
-    print(f"whole batch vectorised against sharded: q {r['q_diff'] / r['q_scale']:.1e}, "
-          f"qd {r['qd_diff'] / r['qd_scale']:.1e} relative (batching round-off; bounded by LOOP_RTOL's test)")
+    assert r["q_diff"] <= WHOLE_BATCH_RTOL * r["q_scale"]
+    assert r["qd_diff"] <= WHOLE_BATCH_RTOL * r["qd_scale"]
     assert "does not split evenly over 8 devices" in r["uneven"]
 
 
