@@ -545,7 +545,14 @@ def cached(name: str):
             leaves, treedef = jax.tree.flatten((args, kwargs))
             arrays = [leaf for leaf in leaves if isinstance(leaf, (jax.Array, np.ndarray))]
             statics = tuple(_ARRAY if isinstance(leaf, (jax.Array, np.ndarray)) else leaf for leaf in leaves)
-            return compiled((treedef, statics), *arrays)
+            try:
+                return compiled((treedef, statics), *arrays)
+            except TypeError as e:  # JAX's words for forward mode through a reverse-mode-only adjoint
+                if "forward-mode autodiff" not in str(e) or "custom_vjp" not in str(e):
+                    raise
+                raise TypeError(f"{name}: forward-mode differentiation (jax.jvp, jax.jacfwd) of a rollout needs "
+                                "adjoint='forward' (or 'direct'); the default 'checkpoint' (and 'backsolve') "
+                                "differentiate in reverse mode only") from e
 
         call.__name__ = call.__qualname__ = name
         call.__wrapped__ = fn

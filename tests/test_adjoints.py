@@ -173,3 +173,15 @@ def test_backsolve_parameter_gradients_agree_with_checkpoint(model, fns, referen
     rel = _rel(_jacobian_rev(fns("backsolve"), _args(model)), reference)
     print(f"\n  backsolve vs checkpoint (all inputs): max |dJ| / max |J| = {rel:.2e}")
     assert 0.0 < rel <= BACKSOLVE_RTOL
+
+
+def test_forward_mode_through_a_reverse_mode_adjoint_is_named(model):
+    """``jax.jacfwd`` of a rollout left at the default (reverse-mode) adjoint: our error names the entry and the
+    adjoint to pass, instead of JAX's bare ``can't apply forward-mode autodiff (jvp) to a custom_vjp function``.
+    (Under the caller's own ``jit`` JAX raises its own error later, when it differentiates the compiled program.)"""
+
+    def final_q(q0):
+        return simulate(forward_dynamics, model, q0, jnp.asarray(QD0), 0.0, 0.05, rtol=1e-6, atol=1e-8).q[-1]
+
+    with pytest.raises(TypeError, match="simulate: forward-mode differentiation .* needs adjoint='forward'"):
+        jax.jacfwd(final_q)(jnp.asarray(Q0))
