@@ -8,9 +8,9 @@ reaches a final joint-angle error ≤ 1e-6 rad on the checked members (error aga
 per member):
 
 * ours: :func:`particlesim.batch.sharded_vmap` of ``simulate`` (Tsit5, adaptive), looping over chunks of 4
-  members; and, for comparison, the whole batch vectorised (``vmap``: the members step together until the slowest
-  is done, and every step carries the whole batch), measured on 128 members. Compile reported separately. Steps
-  = mean accepted steps per member;
+  members, on one CPU device and (a fresh process) on two host devices, one per core; and, for comparison, the
+  whole batch vectorised (``vmap``: the members step together until the slowest is done, and every step carries
+  the whole batch), measured on 128 members. Compile reported separately. Steps = mean accepted steps per member;
 * MJX: ``mjx.step`` (RK4) vmapped over the batch of models (``body_mass``, ``body_inertia``) and states, in a
   ``lax.scan``. MJX is timed on a short run of the batch and its cost per batched step is multiplied by the steps
   the horizon needs at the chosen dt (stated in the table: a full run would take minutes). The dt is chosen by
@@ -67,34 +67,25 @@ def _members(model, rng):
     return scale, q0
 
 
-def run() -> dict:
-    started = time.perf_counter()
-    path = data_dir() / URDF
-    model = load_urdf(path, gravity=GRAVITY)
-    n = model.nq
+def _ours(m, q0, qd0, rtol, atol, solver="tsit5"):
+    s = simulate(forward_dynamics, m, q0, qd0, 0.0, T_END, solver=solver, rtol=rtol, atol=atol)
+    return s.q[-1], s.steps
+
+
+def _scene():
+    model = load_urdf(data_dir() / URDF, gravity=GRAVITY)
     scale, q0 = _members(model, np.random.default_rng(0))
     inertias = jnp.asarray(np.asarray(model.inertia)[None] * scale[:, :, None])
-    jq0, jqd0 = jnp.asarray(q0), jnp.zeros((BATCH, n))
+    return model, scale, q0, inertias, jnp.asarray(q0), jnp.zeros((BATCH, model.nq))
+
+
+def _ours_rows(model, inertias, jq0, jqd0, ref, plans, where="") -> list[dict]:
+    """Our rows: for each ``(chunk, members)`` of ``plans``, :func:`sharded_vmap` over all devices of this process
+    in chunks of ``chunk`` (``None``: vectorised whole), timed on ``members`` members and scaled to the batch."""
     rows = []
-
-    def ours(m, q0, qd0, rtol, atol, solver="tsit5"):
-        s = simulate(forward_dynamics, m, q0, qd0, 0.0, T_END, solver=solver, rtol=rtol, atol=atol)
-        return s.q[-1], s.steps
-
-    # Reference per checked member: Dopri8 at rtol 1e-12.
-    ref_fn = jax.jit(lambda m, q0, qd0: ours(m, q0, qd0, 1e-12, 1e-14, "dopri8"))
-    ref = np.stack([np.asarray(ref_fn(model.with_params(inertia=inertias[k]), jq0[k], jqd0[k])[0])
-                    for k in range(CHECK)])
-
-    def err(qf):
-        return float(np.max(np.abs(np.asarray(qf)[:CHECK] - ref)))
-
-    # Ours: the batch through sharded_vmap (one CPU device here), looped in chunks of CHUNK members, and for
-    # comparison the whole batch vectorised (measured on VMAP_MEMBERS members: it is slower per member).
     axes = (param_axes(model, "inertia"), 0, 0, None, None)
-    models = model.with_params(inertia=inertias)
-    for chunk, b in ((CHUNK, BATCH), (None, VMAP_MEMBERS)):
-        f = sharded_vmap(ours, axes, chunk=chunk)
+    for chunk, b in plans:
+        f = sharded_vmap(_ours, axes, chunk=chunk)
         for rtol in OURS_RTOLS:
             r, a = jnp.asarray(rtol), jnp.asarray(rtol * 1e-2)
             args = (model.with_params(inertia=inertias[:b]), jq0[:b], jqd0[:b], r, a)
@@ -102,13 +93,58 @@ def run() -> dict:
             # One timed call of the compiled batch (it runs for seconds: dispatch and warm-up are noise).
             wall, (qf, steps) = timed(lambda: jax.block_until_ready(g(*args)))
             steps = np.asarray(steps)
-            how = (f"chunks of {chunk} (lax.map)" if chunk else "whole batch vectorised (vmap)")
+            how = (f"chunks of {chunk} (lax.map)" if chunk else "whole batch vectorised (vmap)") + where
             note = (f"{how}; steps per member: max {int(steps.max())}, mean {steps.mean():.0f}" +
                     ("" if b == BATCH else f"; {b} members timed, x {BATCH // b}"))
             rows.append({"method": f"ours, {how}", "setting": f"tsit5 rtol {rtol:g}", "batch": BATCH,
-                         "wall_s": wall * BATCH / b, "error": err(qf), "steps": int(round(steps.mean())),
-                         "compile_s": comp, "note": note})
+                         "wall_s": wall * BATCH / b, "error": float(np.max(np.abs(np.asarray(qf)[:CHECK] - ref))),
+                         "steps": int(round(steps.mean())), "compile_s": comp, "note": note})
             print(rows[-1], flush=True)
+    return rows
+
+
+def _two_device_rows(ref) -> list[dict]:
+    """The chunked rows again in a fresh process whose CPU is split into two host devices (``XLA_FLAGS`` must be
+    set before JAX starts): ``sharded_vmap`` gives each device half the batch, so ours runs on two cores."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        np.save(f"{tmp}/ref.npy", ref)
+        flags = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+        env = {**os.environ, "XLA_FLAGS": flags.strip()}
+        subprocess.run([sys.executable, "-m", "benchmarks.batched_rollouts", "two-device-worker", tmp], env=env,
+                       check=True)
+        with open(f"{tmp}/rows.json") as f:
+            return json.load(f)
+
+
+def _two_device_worker(tmp: str) -> None:
+    assert len(jax.devices()) == 2, jax.devices()
+    model, _, _, inertias, jq0, jqd0 = _scene()
+    rows = _ours_rows(model, inertias, jq0, jqd0, np.load(f"{tmp}/ref.npy"), ((CHUNK, BATCH),),
+                      where=", two host devices")
+    with open(f"{tmp}/rows.json", "w") as f:
+        json.dump(rows, f)
+
+
+def run() -> dict:
+    started = time.perf_counter()
+    path = data_dir() / URDF
+    model, scale, q0, inertias, jq0, jqd0 = _scene()
+    n = model.nq
+
+    # Reference per checked member: Dopri8 at rtol 1e-12.
+    ref_fn = jax.jit(lambda m, q0, qd0: _ours(m, q0, qd0, 1e-12, 1e-14, "dopri8"))
+    ref = np.stack([np.asarray(ref_fn(model.with_params(inertia=inertias[k]), jq0[k], jqd0[k])[0])
+                    for k in range(CHECK)])
+    # Ours: the batch through sharded_vmap (one CPU device here), looped in chunks of CHUNK members, and for
+    # comparison the whole batch vectorised (measured on VMAP_MEMBERS members: it is slower per member); then the
+    # chunked loop again on two host devices, in a fresh process (equal cores with MuJoCo C on two threads).
+    rows = _ours_rows(model, inertias, jq0, jqd0, ref, ((CHUNK, BATCH), (None, VMAP_MEMBERS)))
+    rows += _two_device_rows(ref)
 
     # MuJoCo C RK4: error per dt on the checked members, and the per-member loop cost.
     mj = mujoco_model(path, gravity=GRAVITY, integrator="rk4")
@@ -284,8 +320,10 @@ def markdown(results: dict) -> str:
     rows = results["rows"]
     best = {m: max((r for r in rows if r["method"] == m and r["error"] <= results["target_error_rad"]),
                    key=lambda r: r["rollouts_per_s"], default=None) for m in dict.fromkeys(r["method"] for r in rows)}
-    ours = max((r for m, r in best.items() if r and m.startswith("ours")), key=lambda r: r["rollouts_per_s"],
-               default=None)
+    ours = max((r for m, r in best.items() if r and m.startswith("ours") and "two host devices" not in m),
+               key=lambda r: r["rollouts_per_s"], default=None)
+    ours2 = max((r for m, r in best.items() if r and m.startswith("ours") and "two host devices" in m),
+                key=lambda r: r["rollouts_per_s"], default=None)
     lines = [f"### Batched rollouts: {results['batch']} Krang parameter sets and initial states "
              f"({results['t_end_s']:g} s each)", "",
              f"{env['cpu']}, {env['cpu_count']} cores, load average {env['load_average_1_5_15min'][0]:.1f} (1 min), "
@@ -293,10 +331,15 @@ def markdown(results: dict) -> str:
              f"error over the checked members against ours Dopri8 rtol 1e-12.", ""]
     if ours:
         parts = [f"{ours['rollouts_per_s'] / r['rollouts_per_s']:.1f}× {m}" for m, r in best.items()
-                 if r and not m.startswith("ours")]
-        lines += [f"**Ours at ≤ {results['target_error_rad']:g} rad ({ours['method']}, {ours['setting']}): "
-                  f"{ours['rollouts_per_s']:.0f} rollouts/s; throughput relative to the others at the same error: "
-                  + ", ".join(parts) + ".**", ""]
+                 if r and not m.startswith("ours") and not m.endswith("2 threads")]
+        lines += [f"**Ours on one core at ≤ {results['target_error_rad']:g} rad ({ours['method']}, "
+                  f"{ours['setting']}): {ours['rollouts_per_s']:.0f} rollouts/s; throughput relative to the others "
+                  "at the same error: " + ", ".join(parts) + ".**", ""]
+    two = best.get("MuJoCo C mujoco.rollout (RK4), 2 threads")
+    if ours2 and two:
+        lines += [f"**Two cores: ours ({ours2['method']}, {ours2['setting']}) {ours2['rollouts_per_s']:.0f} "
+                  f"rollouts/s against MuJoCo C `mujoco.rollout` on 2 threads {two['rollouts_per_s']:.0f}/s: "
+                  f"{ours2['rollouts_per_s'] / two['rollouts_per_s']:.1f}×.**", ""]
     lines += ["| method | setting | wall time for the batch | rollouts/s | member-steps/s | final error | "
               "compile | how measured |", "|---|---|---:|---:|---:|---:|---:|---|"]
     for r in rows:
@@ -305,9 +348,9 @@ def markdown(results: dict) -> str:
                      f"{r['member_steps_per_s']:.3g} | {r['error']:.1e} rad | {comp} | {r['note']} |")
     errs = ", ".join(f"dt {k}: {v:.1e}" for k, v in results["rk4_error_by_dt"].items())
     lines += ["", f"RK4 final error by step (MuJoCo C, same for MJX and the Pinocchio loop): {errs} rad. Ours runs on "
-              "one core here; it could split the batch over both as two host devices (`sharded_vmap`, "
-              "`XLA_FLAGS=--xla_force_host_platform_device_count=2`), not done in this run. MuJoCo C is shown on one "
-              "and on two threads.", ""]
+              "one core (one CPU device), and on two as two host devices in a fresh process (`sharded_vmap` over "
+              "`XLA_FLAGS=--xla_force_host_platform_device_count=2`: each device loops over its half of the batch); "
+              "MuJoCo C on one and on two threads.", ""]
     return "\n".join(lines)
 
 
@@ -320,4 +363,9 @@ def main() -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if sys.argv[1:2] == ["two-device-worker"]:
+        _two_device_worker(sys.argv[2])
+    else:
+        main()
