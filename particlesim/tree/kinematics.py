@@ -14,6 +14,7 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_batching import custom_vmap
 from jaxtyping import Array, ArrayLike, Float
 
 from .._jit import compiled
@@ -103,11 +104,14 @@ def _ancestor_rounds(parents: tuple) -> tuple[np.ndarray, ...]:
     return tuple(rounds)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
-def _compose(parents: tuple, order: tuple, t: Array) -> Array:
-    """World ``[R | p]`` (n, 3, 4) of every link from the parent-from-child ``[R | p]`` (n, 3, 4), by pointer jumping
-    (:func:`_ancestor_rounds`); ``order`` lists the links parents first (used by the derivative). Each round
-    multiplies the ancestors' ``[R | p]`` by the links' homogeneous 4 x 4 transforms."""
+#: A ``jax.vmap`` of more than this many states composes link poses link by link (:func:`_composer`): the pointer
+#: jumping's fewer kernels win for one state and small batches, its extra arithmetic loses on wide ones.
+VMAP_JUMPING_MAX_STATES = 16
+
+
+def _jumping(parents: tuple, t: Array) -> Array:
+    """World ``[R | p]`` (n, 3, 4) by pointer jumping (:func:`_ancestor_rounds`): each round multiplies the
+    ancestors' ``[R | p]`` by the links' homogeneous 4 x 4 transforms."""
     n = t.shape[0]
     # the gathered table's last entry is the world; the links' transforms get the homogeneous row [0 0 0 1]
     world = jnp.concatenate([jnp.eye(3, dtype=t.dtype), jnp.zeros((3, 1), t.dtype)], axis=1)[None]
@@ -115,6 +119,47 @@ def _compose(parents: tuple, order: tuple, t: Array) -> Array:
     for anc in _ancestor_rounds(parents):
         t = _mm(jnp.concatenate([t, world])[anc], jnp.concatenate([t, last], axis=1))
     return t
+
+
+def _link_by_link(parents: tuple, order: tuple, t: Array) -> Array:
+    """World ``[R | p]`` (n, 3, 4) link by link, parents first: ``R_i = R_k R_rel``, ``p_i = p_k + R_k p_rel``."""
+    rs, ps = [None] * len(parents), [None] * len(parents)
+    for i in order:
+        k = parents[i]
+        if k < 0:
+            rs[i], ps[i] = t[i, :, :3], t[i, :, 3]
+        else:
+            rs[i], ps[i] = _mm(rs[k], t[i, :, :3]), ps[k] + _mv(rs[k], t[i, :, 3])
+    return jnp.concatenate([jnp.stack(rs), jnp.stack(ps)[:, :, None]], axis=2)
+
+
+@functools.lru_cache(maxsize=64)
+def _composer(parents: tuple, order: tuple):
+    """The pose composition of one tree as a ``custom_vmap`` function of ``t`` (n, 3, 4): pointer jumping, and under
+    ``jax.vmap`` of more than :data:`VMAP_JUMPING_MAX_STATES` states link by link. 128 Krang rollouts vmapped
+    together took 20.1-20.2 s jumping, 15.4-16.0 s link by link before the jumping, 14.8-15.0 s with this rule;
+    in chunks of 4 (``sharded_vmap(..., chunk=4)``) all three the same, 5.7-5.9 s (A/B, fresh processes)."""
+
+    @custom_vmap
+    def compose(t):
+        return _jumping(parents, t)
+
+    @compose.def_vmap
+    def _rule(axis_size, in_batched, t):
+        if not in_batched[0]:
+            return compose(t), False
+        if axis_size <= VMAP_JUMPING_MAX_STATES:
+            return jax.vmap(functools.partial(_jumping, parents))(t), True
+        return jax.vmap(functools.partial(_link_by_link, parents, order))(t), True
+
+    return compose
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0, 1))
+def _compose(parents: tuple, order: tuple, t: Array) -> Array:
+    """World ``[R | p]`` (n, 3, 4) of every link from the parent-from-child ``[R | p]`` (n, 3, 4) (:func:`_composer`;
+    ``order`` lists the links parents first)."""
+    return _composer(parents, order)(t)
 
 
 @_compose.defjvp
@@ -125,16 +170,17 @@ def _compose_jvp(parents, order, primals, tangents):
     composition; this way it costs what that composition's does, and the value keeps the rounds' few kernels."""
     (t,), (dt,) = primals, tangents
     w = _compose(parents, order, t)
-    dw = [None] * len(parents)
+    drs, dps = [None] * len(parents), [None] * len(parents)
     for i in order:
         k = parents[i]
         if k < 0:
-            dw[i] = dt[i]
+            drs[i], dps[i] = dt[i, :, :3], dt[i, :, 3]
         else:
             # W_i = [R_k R_i | R_k p_i + p_k]: dR_i^w = dR_k R_i + R_k dR_i, dp_i^w = dR_k p_i + R_k dp_i + dp_k
-            rot = _mm(dw[k][:, :3], t[i]) + _mm(w[k][:, :3], dt[i])
-            dw[i] = rot.at[:, 3].add(dw[k][:, 3])
-    return w, jnp.stack(dw)
+            r_k = w[k, :, :3]
+            drs[i] = _mm(drs[k], t[i, :, :3]) + _mm(r_k, dt[i, :, :3])
+            dps[i] = _mv(drs[k], t[i, :, 3]) + _mv(r_k, dt[i, :, 3]) + dps[k]
+    return w, jnp.concatenate([jnp.stack(drs), jnp.stack(dps)[:, :, None]], axis=2)
 
 
 @compiled("link_poses", check=_quaternion_checks, arrays_only=True)
@@ -146,10 +192,10 @@ def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
     one small product per link. Krang (18 links, 10 deep): 4 rounds instead of 17 link-by-link products; its
     one-state forward dynamics inside a compiled loop took 13.6-14.1 us before, 11.6-11.7 us after (XLA's CPU runtime
     pays for every kernel it dispatches: 80 kernels became 37), 4 states vmapped inside a loop 9.6 -> 9.1 us per
-    state, but 1024 vmapped at once 18 -> 21 us per state (there the rounds' extra arithmetic shows; a batch passed
-    to :func:`~.dynamics.forward_dynamics` takes the articulated-body sweeps instead). Derivatives are taken link by
-    link (:func:`_compose_jvp`). Square 4 x 4 transforms throughout ran 11.8 us for one state but 19.4 us per state
-    vmapped by 4; ``R`` and ``p`` composed separately, 12.5 and 10.0 us."""
+    state. Wide ``jax.vmap`` batches compose link by link instead, where the rounds' extra arithmetic would show
+    (:func:`_composer`; a batch passed to :func:`~.dynamics.forward_dynamics` takes the articulated-body sweeps).
+    Derivatives are taken link by link (:func:`_compose_jvp`). Square 4 x 4 transforms throughout ran 11.8 us for
+    one state but 19.4 us per state vmapped by 4; ``R`` and ``p`` composed separately, 12.5 and 10.0 us."""
     r_rel, p_rel = joint_transforms(model, q)
     t = jnp.concatenate([r_rel, p_rel[:, :, None]], axis=2)  # [R | p] (n, 3, 4)
     w = _compose(tuple(model.parents), tuple(model.topological_order), t)

@@ -145,3 +145,14 @@ def test_link_poses_equal_the_link_by_link_products():
     for ours, ref in zip(jax.jacrev(poses)(q), jax.jacrev(plain)(q)):
         assert max_rel(np.asarray(ours), np.asarray(ref)) <= EXACT_RTOL
     check_grads(poses, (q,), order=2, modes=("fwd", "rev"))
+    # Under jax.vmap a few states keep the pointer jumping and many take the link-by-link composition
+    # (VMAP_JUMPING_MAX_STATES): both against the plain recursion, values and tangents.
+    from particlesim.tree.kinematics import VMAP_JUMPING_MAX_STATES
+
+    for states in (3, VMAP_JUMPING_MAX_STATES + 4):
+        qs = jnp.asarray(rng.uniform(-1.5, 1.5, (states, model.nq)))
+        vs = jnp.asarray(rng.normal(size=(states, model.nq)))
+        ours = jax.vmap(lambda q, v: jax.jvp(poses, (q,), (v,)))(qs, vs)
+        ref = jax.vmap(lambda q, v: jax.jvp(plain, (q,), (v,)))(qs, vs)
+        for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(ref)):
+            assert max_rel(np.asarray(a), np.asarray(b)) <= EXACT_RTOL
