@@ -95,9 +95,10 @@ def test_jacobian_matches_differentiated_poses(small_tree):
 def test_link_poses_equal_the_link_by_link_products():
     """The pointer-jumping composition of :func:`link_poses` against the plain recursion ``R_i = R_parent R_rel``,
     ``p_i = p_parent + R_parent p_rel`` over :func:`joint_transforms`, on a hand-built forest with a free root, a ball
-    joint, prismatic and revolute joints and parents listed after their children."""
+    joint, prismatic and revolute joints and parents listed after their children: values, derivatives (forward,
+    reverse, second order) and both compositions under ``jax.vmap``."""
     from particlesim.tree import TreeModel
-    from particlesim.tree.kinematics import joint_transforms
+    from particlesim.tree.kinematics import VMAP_JUMPING_MAX_STATES, joint_transforms
 
     rng = np.random.default_rng(5)
     parents = [3, -1, 4, 1, 1, 0, -1, 6]
@@ -110,22 +111,8 @@ def test_link_poses_equal_the_link_by_link_products():
                       origin_xyz=rng.uniform(-0.5, 0.5, (8, 3)),
                       inertia=np.tile([1.0, 0, 0, 0, 1, 0, 0, 1, 0, 1], (8, 1)),
                       joint_names=[f"j{i}" for i in range(8)], gravity=(0.0, 0.0, -9.81))
-    for seed in SEEDS:
-        q = rng.uniform(-1.5, 1.5, model.nq)
-        r_rel, p_rel = (np.asarray(x) for x in joint_transforms(model, jnp.asarray(q)))
-        rot, pos = (np.asarray(x) for x in link_poses(model, jnp.asarray(q)))
-        r_ref, p_ref = [None] * 8, [None] * 8
-        while any(r is None for r in r_ref):
-            for i, k in enumerate(parents):
-                if r_ref[i] is None and (k < 0 or r_ref[k] is not None):
-                    r_ref[i] = r_rel[i] if k < 0 else r_ref[k] @ r_rel[i]
-                    p_ref[i] = p_rel[i] if k < 0 else p_ref[k] + r_ref[k] @ p_rel[i]
-        assert max_rel(rot, np.stack(r_ref)) <= EXACT_RTOL
-        assert max_rel(pos, np.stack(p_ref)) <= EXACT_RTOL
 
-    # Derivatives: link_poses takes its tangents link by link (a custom JVP beside the pointer-jumping value); against
-    # JAX's own derivatives of the plain recursion, forward and reverse, and check_grads to second order.
-    def plain(q):
+    def plain(q):  # the reference: R_i = R_parent R_rel, p_i = p_parent + R_parent p_rel, parents found as we go
         r_rel, p_rel = joint_transforms(model, q)
         rs, ps = [None] * 8, [None] * 8
         while any(r is None for r in rs):
@@ -135,6 +122,13 @@ def test_link_poses_equal_the_link_by_link_products():
                     ps[i] = p_rel[i] if k < 0 else ps[k] + rs[k] @ p_rel[i]
         return jnp.stack(rs), jnp.stack(ps)
 
+    for _ in SEEDS:
+        q = jnp.asarray(rng.uniform(-1.5, 1.5, model.nq))
+        for ours, ref in zip(link_poses(model, q), plain(q)):
+            assert max_rel(np.asarray(ours), np.asarray(ref)) <= EXACT_RTOL
+
+    # Derivatives: link_poses takes its tangents link by link (a custom JVP beside the pointer-jumping value); against
+    # JAX's own derivatives of the plain recursion, forward and reverse, and check_grads to second order.
     def poses(q):
         return link_poses.raw(model, q)
 
@@ -147,8 +141,6 @@ def test_link_poses_equal_the_link_by_link_products():
     check_grads(poses, (q,), order=2, modes=("fwd", "rev"))
     # Under jax.vmap a few states keep the pointer jumping and many take the link-by-link composition
     # (VMAP_JUMPING_MAX_STATES): both against the plain recursion, values and tangents.
-    from particlesim.tree.kinematics import VMAP_JUMPING_MAX_STATES
-
     for states in (3, VMAP_JUMPING_MAX_STATES + 4):
         qs = jnp.asarray(rng.uniform(-1.5, 1.5, (states, model.nq)))
         vs = jnp.asarray(rng.normal(size=(states, model.nq)))
