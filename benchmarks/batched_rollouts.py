@@ -337,7 +337,7 @@ def markdown(results: dict) -> str:
                   "at the same error: " + ", ".join(parts) + ".**", ""]
     two = best.get("MuJoCo C mujoco.rollout (RK4), 2 threads")
     if ours2 and two:
-        lines += [f"**Two cores: ours ({ours2['method']}, {ours2['setting']}) {ours2['rollouts_per_s']:.0f} "
+        lines += [f"**Two cores: {ours2['method']}, {ours2['setting']}: {ours2['rollouts_per_s']:.0f} "
                   f"rollouts/s against MuJoCo C `mujoco.rollout` on 2 threads {two['rollouts_per_s']:.0f}/s: "
                   f"{ours2['rollouts_per_s'] / two['rollouts_per_s']:.1f}×.**", ""]
     lines += ["| method | setting | wall time for the batch | rollouts/s | member-steps/s | final error | "
