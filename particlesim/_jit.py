@@ -30,8 +30,14 @@ from ._xla import TopJit
 __all__ = ["compiled"]
 
 
+try:  # the concrete array type, so that the common case is one type comparison (isinstance of jax.Array is slower)
+    from jax._src.array import ArrayImpl as _ArrayImpl
+except ImportError:  # pragma: no cover - another JAX layout: isinstance alone
+    _ArrayImpl = jax.Array
+
+
 def _as_array(x):
-    if isinstance(x, (jax.Array, jax.core.Tracer)) or x is None:
+    if type(x) is _ArrayImpl or x is None or isinstance(x, (jax.Array, jax.core.Tracer)):
         return x
     return jnp.asarray(np.asarray(x, dtype=np.float64))
 
@@ -68,20 +74,30 @@ def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = 
             entry = cached(name)(fn)
 
         positions = [i for i, n in enumerate(names) if n in arrays]
+        named_positions = [(names[i], i) for i in positions]
+        # Positional calls that leave only defaulted parameters out (``forward_dynamics(model, q, qd, tau)``) take
+        # the fast path too: binding the signature costs more than a small compiled call's own dispatch.
+        required = sum(p.default is inspect.Parameter.empty and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)
+                       for p in sig.parameters.values())
+        positional_ok = all(p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) for p in sig.parameters.values())
 
         @functools.wraps(fn)
         def call(*args, **kwargs):
-            if kwargs or len(args) != len(names):  # keywords or defaults: bind by name
+            if kwargs or not (positional_ok and required <= len(args) <= len(names)):  # keywords: bind by name
                 bound = sig.bind(*args, **kwargs)
                 for n in arrays:
                     if n in bound.arguments:
                         bound.arguments[n] = _as_array(bound.arguments[n])
                 args, kwargs, given = bound.args, bound.kwargs, bound.arguments
             else:  # all positional (the common call): convert by position
-                args = tuple(_as_array(a) if i in positions else a for i, a in enumerate(args))
-                given = None
+                args = list(args)
+                for i in positions:
+                    if i < len(args):
+                        args[i] = _as_array(args[i])
+                if check is not None:
+                    check(args[0], {n: args[i] for n, i in named_positions if i < len(args)})
+                return entry(*args)
             if check is not None:
-                given = dict(zip(names, args)) if given is None else given
                 check(given[names[0]], {n: given[n] for n in arrays if n in given})
             return entry(*args, **kwargs)
 

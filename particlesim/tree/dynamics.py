@@ -21,6 +21,7 @@ from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .aba import aba, aba_one_state, batch_chunks, batch_lanes, one_state_sweeps, supports_aba
@@ -287,7 +288,7 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     External wrenches enter through ``tau``: add :func:`~.kinematics.wrench_torques` (``J^T f``, eq. 16).
     ``smooth_friction=eps`` replaces ``sign(qd)`` by ``tanh(qd / eps)`` (differentiable at ``qd = 0``).
     """
-    if all(jnp.ndim(v) <= 1 for v in (q, qd, tau)):
+    if _ndim(q) <= 1 and _ndim(qd) <= 1 and _ndim(tau) <= 1:  # one state (the common call: kept cheap)
         return _one_state(model, q, qd, tau, smooth_friction)
     q, qd, tau = jnp.asarray(q), jnp.asarray(qd), jnp.asarray(tau)
     for name, v in (("q", q), ("qd", qd), ("tau", tau)):
@@ -302,6 +303,12 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     q, qd, tau = (jnp.broadcast_to(v, batch + v.shape[-1:]) for v in (q, qd, tau))
     model.check_quaternions_nonzero(q)
     return _batched(model, q, qd, tau, smooth_friction)
+
+
+def _ndim(x) -> int:
+    """``numpy.ndim`` without its dispatch for arrays (which carry ``ndim``)."""
+    n = getattr(x, "ndim", None)
+    return np.ndim(x) if n is None else n
 
 
 @compiled("forward_dynamics batch", static=("smooth_friction",), arrays_only=True, batch=True)
