@@ -33,7 +33,8 @@ NAME = "wp_a01"
 T_END = A01["t_end"]
 TARGET = 1e-3  # m: the benchmark's high precision
 TS = np.linspace(0.0, T_END, A01["outputs"] + 1)
-RTOLS = (1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11)
+# 1-2-5 steps where the cheapest runs meet the target (MuJoCo's time is interpolated to it), decades beyond
+RTOLS = (1e-6, 1e-7, 1e-8, 5e-9, 2e-9, 1e-9, 5e-10, 2e-10, 1e-10, 1e-11)
 EXPLICIT = {"tsit5": RTOLS, "dopri5": RTOLS, "dopri8": RTOLS}
 C_RK4_STEPS = (2e-2, 1e-2, 5e-3, 2.5e-3, 1e-3)
 

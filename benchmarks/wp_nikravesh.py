@@ -40,9 +40,10 @@ NAME = "wp_nikravesh"
 T_END = 2.0
 TARGET = 1e-6  # m, wheel height
 TS = np.linspace(0.0, T_END, 201)  # every 10 ms (AA_results.csv rows 0, 10, 20, ...)
-RTOLS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
+# 1-2-5 steps where the cheapest runs meet the target (MuJoCo's time is interpolated to it), decades beyond
+RTOLS = (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
 EXPLICIT = {"tsit5": RTOLS, "dopri5": RTOLS, "dopri8": RTOLS}
-IMPLICIT = {"kvaerno5": RTOLS[:4]}
+IMPLICIT = {"kvaerno5": (1e-3, 1e-4, 1e-5, 1e-6)}
 REF_RTOL = 1e-12
 C_RK4_STEPS = (4e-2, 2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4)
 C_FIRST_ORDER_STEPS = (1e-3, 1e-4)
