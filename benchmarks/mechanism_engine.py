@@ -142,8 +142,8 @@ def _thetas(rng) -> np.ndarray:
 
 #: The settings swept, loosest first, each side at the first that meets TARGET on the checked members (steps in
 #: between so that neither stops far below the target: MuJoCo's error here falls as dt^2, the tyre's switch bounds
-#: RK4's order): our rtol, and MuJoCo's step count over BATCH_T (dt = BATCH_T / n). Both grids step by about 10 %
-#: near the target (ours ten per decade from 1e-2 to 1e-3, MuJoCo's dt 1/100 to 1/250 s), coarser beyond.
+#: RK4's order): our rtol, and MuJoCo's step count over BATCH_T (dt = BATCH_T / n). Near the target ours steps by
+#: about 26 % (ten per decade from 1e-2 to 1e-3), MuJoCo's dt by 10-14 % (1/100 to 1/250 s); both coarser beyond.
 BATCH_RTOLS = tuple(float(f"{10 ** (-2 - k / 10):.2g}") for k in range(11)) + (5e-4, 2e-4, 1e-4, 1e-5)
 BATCH_MUJOCO_STEPS = (100, 110, 125, 140, 160, 180, 200, 250, 500, 1000, 2000)
 #: Ours in the batch: (solver, pid) - the default controller, and the less sensitive one that suits this

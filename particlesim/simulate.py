@@ -159,7 +159,8 @@ def simulate(
             exhausts it ends the run); reaching it is an error (see ``throw``).
         adjoint: ``None``/"checkpoint" (reverse mode, default), "forward" (forward mode, for ``jax.jvp``),
             "direct" (both, more memory), "backsolve", or any diffrax adjoint.
-        pid: (pcoeff, icoeff, dcoeff) of the controller; defaults (0, 1, 0) explicit (integral control), (0.3, 0.3, 0) implicit.
+        pid: (pcoeff, icoeff, dcoeff) of the controller; defaults (0, 1, 0) explicit (integral control),
+            (0.3, 0.3, 0) implicit.
         throw: if True (default) a failed integration raises at run time (also under jit); if False the
             returned :class:`Solution` has ``ok = False`` and NaN trajectories.
         progress: show a tqdm progress bar.

@@ -266,8 +266,8 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
     tip-to-base recursion of :mod:`.chain`, for uniform serial chains). ``adjoint``: a name in :data:`ADJOINTS`
     or a diffrax adjoint; ``None`` is "checkpoint". "backsolve" requires ``stabilise=False`` (module docstring).
     ``pid``: ``(pcoeff, icoeff, dcoeff)`` of the step-size controller, as in :func:`particlesim.simulate.simulate`
-    (defaults (0, 1, 0) explicit (integral control), (0.3, 0.3, 0) implicit). A scene whose step is bounded by stability rather
-    than accuracy (a stiff tyre or spring under an explicit solver: a quarter of the steps rejected, step counts
+    (defaults (0, 1, 0) explicit, integral control; (0.3, 0.3, 0) implicit). A scene whose step is bounded by
+    stability rather than accuracy (a stiff tyre or spring under an explicit solver: a quarter of the steps rejected, step counts
     nearly flat in ``rtol``) takes fewer steps with a less sensitive controller such as ``(0.2, 0.4, 0.0)``.
 
     ``events=True`` locates every switch of a tyre (contact closing or opening) instead of stepping across it:
