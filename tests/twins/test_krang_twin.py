@@ -163,9 +163,13 @@ def test_damping_and_armature_twin_rotor_inertia_and_viscous_friction(shared_dat
 
 # ---- rollouts ---------------------------------------------------------------------------------------------------
 
-ROLL_RTOL, ROLL_ATOL = 1e-12, 1e-12  # Dopri8; its own global error on this problem is ~1e-10 (measured below)
+#: Dopri8 tolerances of our reference rollout. Its own error after 1 s against Dopri8 at rtol 1e-15 (measured
+#: 2026-12-05): at 1e-13, 7e-12 rad in q and 3.4e-10 rad/s in q̇ (both step controllers); at 1e-12 it was 5e-11 / 2.7e-9
+#: under integral control and 4e-11 / 1.9e-9 under the PI (0.4, 1, 0) used before, above the 1e-9 that
+#: ``OURS_FLOOR`` grants our error: the twin test passed by its margin, and failed by 0.2 % once the controller changed.
+ROLL_RTOL, ROLL_ATOL = 1e-13, 1e-13
 #: Our rollout's own error as a reference for the RK4 twin after 1 s, q [rad] and q̇ [rad/s] (q̇'s round-off floor
-#: measured 8e-10).
+#: measured 8e-10; two Dopri8 solves at rtol 1e-14 and 1e-15 differ by 9e-10 in q̇).
 OURS_FLOOR = 1e-9
 
 
@@ -200,7 +204,8 @@ def _mujoco_rk4(shared_data, jm, q0, qd0, dt, t1=1.0):
 def test_krang_falls_like_mujoco_rk4_within_integrator_error(shared_data, krang, krang_rollout):
     """1 s of fixed-wheel Krang falling under gravity from a random pose, no friction, no input.
 
-    RK4 is 4th order: e(h) ≈ K h⁴, so e(1e-4) ≈ 16/15 · |x(1e-4) − x(5e-5)| (Richardson). Measured (2026-12-04):
+    RK4 is 4th order: e(h) ≈ K h⁴, so e(1e-4) ≈ 16/15 · |x(1e-4) − x(5e-5)| (Richardson). Measured (2026-12-05, ours
+    at rtol 1e-13: q̇ ours − RK4(5e-5) 4.2e-9 against the check's 5.5e-9). Measured (2026-12-04, ours at rtol 1e-12):
     ours − RK4(1e-4) is 1.9e-9 rad (q) / 3.6e-8 rad/s (q̇); ours − RK4(5e-5) is 1.2e-10 / 4.1e-9 (4.7e-9 when our
     programs use XLA's direct emitters): RK4 converges to our solution at its own order (16× in q, 7.7-8.7× in q̇).
     The q̇ ratio sits at the check's 8 because our own q̇ is not exact to that level: round-off alone moves it after
