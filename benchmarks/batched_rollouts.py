@@ -89,7 +89,10 @@ def _scene():
 def _ours_error_by_rtol(model, inertias, jq0, jqd0, ref, solver) -> dict:
     """Largest final error over the checked members for each of ``solver``'s :data:`OURS_RTOLS` (atol = rtol /
     100), from the loosest until one meets the target."""
-    f = jax.jit(jax.vmap(functools.partial(_ours, solver=solver), (param_axes(model, "inertia"), 0, 0, None, None)))
+    # the same compiled entry as the timed chunked rows (sharded_vmap, chunks of CHUNK): the checked members' errors
+    # here are those rows' own
+    f = sharded_vmap(functools.partial(_ours, solver=solver), (param_axes(model, "inertia"), 0, 0, None, None),
+                     chunk=CHUNK)
     args = (model.with_params(inertia=inertias[:CHECK]), jq0[:CHECK], jqd0[:CHECK])
     errors = {}
     for rtol in OURS_RTOLS[solver]:
@@ -102,27 +105,26 @@ def _ours_error_by_rtol(model, inertias, jq0, jqd0, ref, solver) -> dict:
 
 
 def _ours_rows(model, inertias, jq0, jqd0, ref, plans, solver, rtol, where="") -> list[dict]:
-    """Our rows with ``solver`` at ``rtol``: for each ``(chunk, members)`` of ``plans``, :func:`sharded_vmap` over all devices of
-    this process in chunks of ``chunk`` (``None``: vectorised whole), timed on ``members`` members and scaled to the
-    batch."""
+    """Our rows with ``solver`` at ``rtol``: for each ``(chunk, members)`` of ``plans``, :func:`sharded_vmap` over
+    all devices of this process in chunks of ``chunk`` (``None``: vectorised whole), timed on ``members`` members and
+    scaled to the batch."""
     rows = []
     axes = (param_axes(model, "inertia"), 0, 0, None, None)
     for chunk, b in plans:
         f = sharded_vmap(functools.partial(_ours, solver=solver), axes, chunk=chunk)
-        for rtol in (rtol,):
-            r, a = jnp.asarray(rtol), jnp.asarray(rtol * 1e-2)
-            args = (model.with_params(inertia=inertias[:b]), jq0[:b], jqd0[:b], r, a)
-            comp, g = timed(lambda: f.lower(*args).compile())
-            # One timed call of the compiled batch (it runs for seconds: dispatch and warm-up are noise).
-            wall, (qf, steps) = timed(lambda: jax.block_until_ready(g(*args)))
-            steps = np.asarray(steps)
-            how = (f"chunks of {chunk} (lax.map)" if chunk else "whole batch vectorised (vmap)") + where
-            note = (f"{how}; steps per member: max {int(steps.max())}, mean {steps.mean():.0f}" +
-                    ("" if b == BATCH else f"; {b} members timed, x {BATCH // b}"))
-            rows.append({"method": f"ours, {how}", "setting": f"{solver} rtol {rtol:g}", "batch": BATCH,
-                         "wall_s": wall * BATCH / b, "error": float(np.max(np.abs(np.asarray(qf)[:CHECK] - ref))),
-                         "steps": int(round(steps.mean())), "compile_s": comp, "note": note})
-            print(rows[-1], flush=True)
+        r, a = jnp.asarray(rtol), jnp.asarray(rtol * 1e-2)
+        args = (model.with_params(inertia=inertias[:b]), jq0[:b], jqd0[:b], r, a)
+        comp, g = timed(lambda: f.lower(*args).compile())
+        # One timed call of the compiled batch (it runs for seconds: dispatch and warm-up are noise).
+        wall, (qf, steps) = timed(lambda: jax.block_until_ready(g(*args)))
+        steps = np.asarray(steps)
+        how = (f"chunks of {chunk} (lax.map)" if chunk else "whole batch vectorised (vmap)") + where
+        note = (f"{how}; steps per member: max {int(steps.max())}, mean {steps.mean():.0f}" +
+                ("" if b == BATCH else f"; {b} members timed, x {BATCH // b}"))
+        rows.append({"method": f"ours, {how}", "setting": f"{solver} rtol {rtol:g}", "batch": BATCH,
+                     "wall_s": wall * BATCH / b, "error": float(np.max(np.abs(np.asarray(qf)[:CHECK] - ref))),
+                     "steps": int(round(steps.mean())), "compile_s": comp, "note": note})
+        print(rows[-1], flush=True)
     return rows
 
 
