@@ -24,16 +24,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._ode import TRACES, cached
+from ._ode import TRACES, _ArrayImpl, cached  # _ArrayImpl: the concrete array type, told by one type comparison
 from ._xla import TopJit
 
 __all__ = ["compiled"]
-
-
-try:  # the concrete array type, so that the common case is one type comparison (isinstance of jax.Array is slower)
-    from jax._src.array import ArrayImpl as _ArrayImpl
-except ImportError:  # pragma: no cover - another JAX layout: isinstance alone
-    _ArrayImpl = jax.Array
 
 
 def _as_array(x):

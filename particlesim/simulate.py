@@ -199,7 +199,7 @@ def simulate(
     out = jax.eval_shape(lambda q, qd: dynamics(params, q, qd, tau_of(q, qd)), q0, qd0)
     if out.shape != qd0.shape:
         raise ModelError(f"dynamics returned shape {out.shape} for a velocity of shape {qd0.shape}")
-    _ode.check_finite("simulate", _ode.leaf_groups(params))  # eager, for concrete values
+    _ode.check_finite_eager("simulate", params, lambda: _ode.leaf_groups(params))  # concrete values
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:
         raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
     coulomb = getattr(params, "coulomb", None)

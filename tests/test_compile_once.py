@@ -1,6 +1,7 @@
 """The public rollouts compile once per structure and solver settings (a trace counter, not a timer), and the shared
 integration core refuses bad settings the same way for trees and mechanisms."""
 
+import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -231,6 +232,39 @@ def test_non_finite_parameters_raise_model_error_in_both(pendulum, two_link):
     with pytest.raises(ModelError, match=r"simulate: parameter \.inertia is not finite"):
         simulate(_tree_dynamics, two_link.with_params(inertia=two_link.inertia * jnp.nan), jnp.zeros(2), jnp.zeros(2),
                  0.0, 0.1)
+
+
+def test_eager_parameter_check_is_remembered_only_for_immutable_models(pendulum):
+    """The eager finite check remembers a model that passed (by identity, jax-array leaves only): a NaN set in place
+    in a NumPy leaf of a model that passed before is still refused before dispatch, and a new model with a NaN
+    too."""
+    mech, x0 = pendulum
+    xd0 = jnp.zeros_like(x0)
+    simulate_mechanism(mech, x0, xd0, 0.0, 0.05)
+    assert _ode._PASSED.get(id(mech)) is mech  # remembered: jax arrays only
+    damping = np.asarray(mech.spring_damping, dtype=np.float64).copy()
+    mutable = eqx.tree_at(lambda m: m.spring_damping, mech, damping)
+    simulate_mechanism(mutable, x0, xd0, 0.0, 0.05)
+    assert id(mutable) not in _ode._PASSED
+    damping[0] = np.nan
+    with pytest.raises(ModelError, match="simulate_mechanism: parameter spring 'spring' damping is not finite"):
+        simulate_mechanism(mutable, x0, xd0, 0.0, 0.05)
+    with pytest.raises(ModelError, match="simulate_mechanism: parameter spring 'spring' damping is not finite"):
+        simulate_mechanism(mech.with_params(spring={"spring": {"damping": jnp.nan}}), x0, xd0, 0.0, 0.05)
+
+
+def test_settings_are_remembered_by_typed_value():
+    a = _ode.settings(solver="tsit5", max_steps=10, throw=True, progress=False, pid=None, save_ts=False)
+    assert _ode.settings(solver="tsit5", max_steps=10, throw=True, progress=False, pid=None, save_ts=False) is a
+    assert _ode.settings(solver="tsit5", max_steps=1, throw=True, progress=False, pid=None, save_ts=False).max_steps == 1
+    with pytest.raises(ValueError, match="max_steps must be a positive integer"):  # True == 1, but not a step count
+        _ode.settings(solver="tsit5", max_steps=True, throw=True, progress=False, pid=None, save_ts=False)
+    listed = _ode.settings(solver="tsit5", max_steps=10, throw=True, progress=False, pid=[0.2, 0.4, 0.0],
+                           save_ts=False)  # unhashable: built, not remembered
+    assert listed.pid == (0.2, 0.4, 0.0)
+    own = diffrax.RecursiveCheckpointAdjoint()
+    b = _ode.settings(solver="tsit5", adjoint=own, max_steps=10, throw=True, progress=False, pid=None, save_ts=False)
+    assert b.adjoint is own and b.adjoint_key == _ode._ByIdentity(own)
 
 
 def test_traced_bad_times_raise_at_run_time(pendulum):

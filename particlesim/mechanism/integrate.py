@@ -208,8 +208,11 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
         ts_, (qs, qds), steps, rejected, result, ok = _ode.integrate(
             field, (q0, qd0), args0, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
             cfg=cfg, projection=projection if stabilise else None, hint=_budget_hint(mech, cfg.solver, solve))
-    if stabilise:
+    if stabilise and (cfg.save_ts or max_events):  # saved states interpolated inside steps: onto the constraints
         qs, qds = jax.lax.map(lambda tab: projection(tab[0], tab[1:], args0), (ts_, qs, qds))
+    elif stabilise:  # saved at t0 and t1: the state at t1 ends a projected step; the initial one is projected here
+        q_start, qd_start = projection(ts_[0], (qs[0], qds[0]), args0)
+        qs, qds = qs.at[0].set(q_start), qds.at[0].set(qd_start)
     if warn_switch:  # a differentiated rollout stepping across a tyre's switch: say so (derivatives are biased)
         touching = jax.vmap(lambda q: deflections(q, mech, prep) < 0.0)(jnp.concatenate([q0[None], qs]))
         jax.debug.callback(_warn_switches, jnp.any(touching[1:] != touching[:-1], axis=0),
@@ -313,7 +316,7 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
                          f"got {q0.shape} and {qd0.shape}")
     _ode.check_state((q0, qd0), ("q0", "qd0"))
     t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
-    _ode.check_finite("simulate_mechanism", parameter_groups(mech))  # eager, for concrete values
+    _ode.check_finite_eager("simulate_mechanism", mech, lambda: parameter_groups(mech))  # concrete values
     if len(mech.topo.drive):
         _check_driven_start(mech, q0, qd0, t0)
     warn = not evented and bool(mech.topo.tyre_names) and _ode.differentiated((mech, q0, qd0))
