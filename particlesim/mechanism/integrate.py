@@ -10,7 +10,8 @@ the local error, so two passes reach round-off, which the tests measure). The pr
 intact (the correction is of the size of the local error), needs no tuning constant (unlike Baumgarte's), and is a
 smooth function of state and parameters, so gradients pass through it. Its iteration count is fixed rather than
 a tolerance-driven loop because a data-dependent loop cannot be differentiated in reverse mode. Saved outputs
-are projected the same way. Mechanisms whose mass matrix is singular project with ``J J^T`` instead.
+are projected the same way (all of them when saved at given times, which fall inside steps; else the initial state,
+the final one ending a projected step). Mechanisms whose mass matrix is singular project with ``J J^T`` instead.
 
 Adjoints: "checkpoint" (default), "direct" and "forward" differentiate the discrete computation, projections
 included. "backsolve" integrates the continuous adjoint equations of the vector field backwards in time; the
