@@ -106,6 +106,32 @@ def test_bad_input_is_refused_with_named_errors(two_link):
         simulate(oscillator, OSC, Q0, jnp.array([jnp.inf, 0.0]), 0.0, 1.0)
 
 
+def test_a_second_call_of_the_same_structure_traces_nothing():
+    """The output-shape check traces ``dynamics`` and ``control`` once per structure (their functions, the
+    parameters' tree and leaf shapes, the state's shapes): a second call with new values traces neither (nor does
+    it recompile); a structure that fails is refused on every call."""
+    traces = {"dynamics": 0, "control": 0}
+
+    def dyn(p, q, qd, tau):
+        traces["dynamics"] += 1
+        return oscillator(p, q, qd, tau)
+
+    def ctl(t, q, qd, p):
+        traces["control"] += 1
+        return 0.1 * q
+
+    simulate(dyn, OSC, Q0, QD0, 0.0, 0.5, control=ctl)
+    first = dict(traces)
+    assert first["dynamics"] >= 1 and first["control"] >= 1
+    sol = simulate(dyn, {"w": jnp.array(3.0)}, Q0 + 0.1, QD0, 0.0, 0.7, control=ctl, rtol=1e-9)
+    assert traces == first
+    assert np.all(np.isfinite(np.asarray(sol.q)))
+    bad = lambda p, q, qd, tau: q[:1]  # noqa: E731
+    for _ in range(2):
+        with pytest.raises(ModelError, match="dynamics returned shape"):
+            simulate(bad, OSC, Q0, QD0, 0.0, 1.0)
+
+
 def test_nan_initial_state_under_jit_raises_at_run_time():
     f = jax.jit(lambda q0: simulate(oscillator, OSC, q0, QD0, 0.0, 1.0).q)
     with pytest.raises(Exception, match="initial state .* is not finite"):
