@@ -12,7 +12,7 @@ from .integrate import SwitchCrossedWarning, project, simulate_mechanism
 from .kinematics import KinematicSolution, kinematic_analysis
 from .model import AppliedForce, AppliedTorque, BodyLoad, BodyState, Mechanism
 from .outputs import (body_angles, body_com_positions, body_poses, body_reactions, body_velocities, cut_joint_forces,
-                      driver_efforts, joint_reaction)
+                      driver_efforts, joint_reaction, point_positions)
 
 __all__ = [
     "Mechanism",
@@ -57,6 +57,7 @@ __all__ = [
     "body_com_positions",
     "body_velocities",
     "body_angles",
+    "point_positions",
     "cut_joint_forces",
     "body_reactions",
     "joint_reaction",

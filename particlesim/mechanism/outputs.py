@@ -20,8 +20,8 @@ from ..spatial import unskew
 from .model import AppliedTorque, BodyLoad, Mechanism
 from .._jit import compiled
 
-__all__ = ["body_poses", "body_com_positions", "body_velocities", "body_angles", "cut_joint_forces",
-           "driver_efforts", "body_reactions", "joint_reaction"]
+__all__ = ["body_poses", "body_com_positions", "body_velocities", "body_angles", "point_positions",
+           "cut_joint_forces", "driver_efforts", "body_reactions", "joint_reaction"]
 
 
 def _check_state(mech: Mechanism, v, what: str) -> None:
@@ -109,6 +109,25 @@ def body_velocities(mech: Mechanism, q: Float[Array, " 3F"], qd: Float[Array, " 
         omega = omega.at[rods].set(w - jnp.sum(w * u, axis=1, keepdims=True) * u)
     v = jnp.einsum("bij,bj->bi", rot_d, mech.body_com) + org_d
     return v, omega
+
+
+@compiled("point positions")
+def _point_positions(mech: Mechanism, q: Float[Array, " 3F"]) -> Float[Array, "K 3"]:
+    return mech.point_positions(mech.all_positions(q))
+
+
+def point_positions(mech: Mechanism, q: Float[Array, " 3F"], names=None) -> Float[Array, "K 3"]:
+    """World positions of named points at state ``q``: particles and points fixed to bodies
+    (:meth:`~.builder.MechanismBuilder.point`), one row per name (a single name gives ``(3,)``); every point of
+    ``mech.topo.point_names`` when ``names`` is None. Vmap over a trajectory: ``jax.vmap(lambda q:
+    point_positions(mech, q, ["M"]))(sol.q)``. An unknown name raises ``KeyError`` naming it."""
+    _check_state(mech, q, "q")
+    out = _point_positions(mech, q)
+    if names is None:
+        return out
+    if isinstance(names, str):
+        return out[mech.point_index(names)]
+    return out[np.asarray([mech.point_index(n) for n in names], dtype=int)]
 
 
 def primary_load_forces(mech: Mechanism, b: int, q, force, torque) -> Float[Array, "k 3"]:

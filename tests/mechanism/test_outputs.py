@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from particlesim.errors import ModelError
 from particlesim.inertia import RigidInertia
 from particlesim.mechanism import (MechanismBuilder, body_com_positions, body_poses, body_velocities,
-                                   simulate_mechanism)
+                                   point_positions, simulate_mechanism)
 from particlesim.scenes.chains import chain_geometry, chain_mechanism
 from particlesim.twins.chains import chain_mjcf
 
@@ -72,6 +72,41 @@ def test_poses_and_velocities_under_a_known_rigid_motion():
         np.testing.assert_allclose(rot[k], q @ rot0[k], atol=RIGID_TOL, err_msg=name)
         np.testing.assert_allclose(org[k], q @ org0[k] + c, atol=RIGID_TOL, err_msg=name)
         np.testing.assert_allclose(w[k], omega, atol=RIGID_TOL, err_msg=name)
+
+
+def test_points_follow_a_known_rigid_motion():
+    """Points fixed to a spatial block, a planar plate and a rod (and particles) move with the rigid motion applied
+    to the whole set: ``Q p + c`` exactly."""
+    mb = MechanismBuilder()
+    pose = (Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix(), np.array([0.4, -0.1, 0.2]))
+    for n, p in (("s0", (0, 0, 0)), ("s1", (0.3, 0, 0)), ("s2", (0, 0.2, 0)), ("s3", (0, 0, 0.1))):
+        mb.particle(n, pose[0] @ np.asarray(p, float) + pose[1])
+    mb.body("block", RigidInertia(2.0, (0.1, 0.05, 0.02), np.diag([0.01, 0.02, 0.025])), ["s0", "s1", "s2", "s3"],
+            pose=pose, on_negative="ignore")
+    for n, p in (("p0", (1, 0, 0)), ("p1", (1.4, 0.1, 0)), ("p2", (1.1, 0.3, 0))):
+        mb.particle(n, p)
+    mb.body("plate", RigidInertia(1.0, (1.15, 0.12, 0.0), np.diag([0.004, 0.006, 0.01])), ["p0", "p1", "p2"],
+            on_negative="ignore")
+    mb.particle("r0", (0, 1, 0))
+    mb.particle("r1", (0.6, 1.3, 0.2))
+    mb.body("rod", RigidInertia.slender_rod(0.5, (0, 1, 0), (0.6, 1.3, 0.2), moment=0.01), ["r0", "r1"])
+    given = {"on block": (0.7, -0.4, 0.9), "on plate": (1.3, 0.25, 0.0), "on rod": (0.45, 1.225, 0.15)}
+    for name, xyz in given.items():
+        mb.point(name, name.split()[1], xyz)
+    mech, x0 = mb.build()
+    r0 = np.asarray(x0).reshape(-1, 3)
+    names = list(given) + ["s2", "r1"]
+    start = np.array(list(given.values()) + [r0[mech.free.index(mech.index(n))] for n in ("s2", "r1")])
+    np.testing.assert_allclose(point_positions(mech, jnp.asarray(x0), names), start, atol=RIGID_TOL)
+    q = Rotation.from_rotvec([-0.7, 1.1, 0.4]).as_matrix()
+    c = np.array([0.2, -0.3, 0.5])
+    x = jnp.asarray((r0 @ q.T + c).reshape(-1))
+    np.testing.assert_allclose(point_positions(mech, x, names), start @ q.T + c, atol=RIGID_TOL)
+    np.testing.assert_allclose(point_positions(mech, x, "on rod"), np.asarray(given["on rod"]) @ q.T + c,
+                               atol=RIGID_TOL)
+    assert point_positions(mech, x).shape == (len(mech.topo.point_names), 3)
+    with pytest.raises(KeyError, match="no point named 'nowhere'"):
+        point_positions(mech, x, ["nowhere"])
 
 
 def test_body_outputs_are_differentiable():
