@@ -241,7 +241,7 @@ def test_eager_parameter_check_is_remembered_only_for_immutable_models(pendulum)
     mech, x0 = pendulum
     xd0 = jnp.zeros_like(x0)
     simulate_mechanism(mech, x0, xd0, 0.0, 0.05)
-    assert _ode._PASSED.get(id(mech)) is mech  # remembered: jax arrays only
+    assert _ode._PASSED[id(mech)][0]() is mech  # remembered: jax arrays only
     damping = np.asarray(mech.spring_damping, dtype=np.float64).copy()
     mutable = eqx.tree_at(lambda m: m.spring_damping, mech, damping)
     simulate_mechanism(mutable, x0, xd0, 0.0, 0.05)
@@ -251,6 +251,41 @@ def test_eager_parameter_check_is_remembered_only_for_immutable_models(pendulum)
         simulate_mechanism(mutable, x0, xd0, 0.0, 0.05)
     with pytest.raises(ModelError, match="simulate_mechanism: parameter spring 'spring' damping is not finite"):
         simulate_mechanism(mech.with_params(spring={"spring": {"damping": jnp.nan}}), x0, xd0, 0.0, 0.05)
+
+
+class _Gains(eqx.Module):
+    table: dict  # a mutable container of jax arrays: the same object can hold new leaves
+
+
+def _gained(params, q, qd, tau):
+    return -params.table["w"] ** 2 * q + tau
+
+
+class _Checked(eqx.Module):
+    w: jax.Array
+
+    @staticmethod
+    def check_configuration(q):  # a static method: called as the instance hands it out
+        if not np.all(np.abs(np.asarray(q)) < 10.0):
+            raise ModelError("configuration out of range")
+
+
+def test_eager_parameter_check_sees_leaves_replaced_in_place():
+    """A model remembered as checked is checked again when a container inside it now holds other leaves."""
+    params = _Gains({"w": jnp.array(2.0)})
+    q0, qd0 = jnp.array([1.0, 0.0]), jnp.array([0.0, 0.5])
+    simulate(_gained, params, q0, qd0, 0.0, 0.1)
+    params.table["w"] = jnp.array(jnp.nan)
+    with pytest.raises(ModelError, match=r"simulate: parameter \.table\['w'\] is not finite"):
+        simulate(_gained, params, q0, qd0, 0.0, 0.1)
+
+
+def test_configuration_check_given_as_a_static_method_is_called():
+    params = _Checked(jnp.array(2.0))
+    dyn = lambda p, q, qd, tau: -p.w ** 2 * q + tau  # noqa: E731
+    simulate(dyn, params, jnp.array([1.0, 0.0]), jnp.zeros(2), 0.0, 0.1)
+    with pytest.raises(ModelError, match="configuration out of range"):
+        simulate(dyn, params, jnp.array([11.0, 0.0]), jnp.zeros(2), 0.0, 0.1)
 
 
 def test_settings_are_remembered_by_typed_value():

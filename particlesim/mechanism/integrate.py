@@ -10,8 +10,8 @@ the local error, so two passes reach round-off, which the tests measure). The pr
 intact (the correction is of the size of the local error), needs no tuning constant (unlike Baumgarte's), and is a
 smooth function of state and parameters, so gradients pass through it. Its iteration count is fixed rather than
 a tolerance-driven loop because a data-dependent loop cannot be differentiated in reverse mode. Saved outputs
-are projected the same way (all of them when saved at given times, which fall inside steps; else the initial state,
-the final one ending a projected step). Mechanisms whose mass matrix is singular project with ``J J^T`` instead.
+are projected the same way (all of them when saved at given times, which fall inside steps, or with events; else
+the initial state, the final one ending a projected step). Mechanisms whose mass matrix is singular project with ``J J^T`` instead.
 
 Adjoints: "checkpoint" (default), "direct" and "forward" differentiate the discrete computation, projections
 included. "backsolve" integrates the continuous adjoint equations of the vector field backwards in time; the
@@ -211,7 +211,7 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
             cfg=cfg, projection=projection if stabilise else None, hint=_budget_hint(mech, cfg.solver, solve))
     if stabilise and (cfg.save_ts or max_events):  # saved states interpolated inside steps: onto the constraints
         qs, qds = jax.lax.map(lambda tab: projection(tab[0], tab[1:], args0), (ts_, qs, qds))
-    elif stabilise:  # saved at t0 and t1: the state at t1 ends a projected step; the initial one is projected here
+    elif stabilise:  # saved at t0 and t1 only: the state at t1 ends a projected step; the initial one is projected
         q_start, qd_start = projection(ts_[0], (qs[0], qds[0]), args0)
         qs, qds = qs.at[0].set(q_start), qds.at[0].set(qd_start)
     if warn_switch:  # a differentiated rollout stepping across a tyre's switch: say so (derivatives are biased)
