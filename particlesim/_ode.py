@@ -239,11 +239,8 @@ def check_state(y0: tuple[Array, ...], names: tuple[str, ...]) -> None:
     for name, x in zip(names, y0):
         if _concrete(x):
             finite = np.isfinite(np.asarray(x))
-            if finite.all():
-                continue
-            bad = np.flatnonzero(~finite)
-            if bad.size:
-                raise ValueError(f"{name} is not finite at coordinates {bad.tolist()}")
+            if not finite.all():
+                raise ValueError(f"{name} is not finite at coordinates {np.flatnonzero(~finite).tolist()}")
 
 
 def check_finite(entry: str, groups) -> tuple | None:

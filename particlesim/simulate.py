@@ -31,6 +31,7 @@ from jaxtyping import Array, Float
 
 from . import _ode
 from ._ode import ADJOINTS, IMPLICIT_SOLVERS, SOLVERS, Solution
+from ._xla import top_level
 from .errors import ModelError
 
 __all__ = ["SOLVERS", "IMPLICIT_SOLVERS", "ADJOINTS", "Solution", "simulate"]
@@ -58,7 +59,8 @@ def _check_state(params: Any, q0: Array, qd0: Array) -> None:
         check(q0)
 
 
-#: Structures whose ``dynamics``/``control`` output shapes passed :func:`_check_output_shapes` (bounded).
+#: Structures whose ``dynamics``/``control`` output shapes passed :func:`_check_output_shapes` at top level
+#: (bounded; under a caller's trace the check runs once per trace anyway, and nothing traced is kept).
 _SHAPES_PASSED: dict = {}
 _SHAPES_PASSED_MAX = 256
 
@@ -68,15 +70,16 @@ def _check_output_shapes(dynamics, control, params, q0, qd0, t0) -> None:
     tracing them (``jax.eval_shape``). Shapes depend on the structure alone (the functions, the parameters' tree and
     leaf shapes, the state's shapes), so a structure that passed is remembered: tracing Krang's dynamics costs about
     0.75 ms, half of a one-step rollout's call."""
-    leaves, treedef = jax.tree.flatten((dynamics, control, params))
-    arrays = (jax.Array, np.ndarray, jax.core.Tracer)
-    key = (treedef, tuple((np.shape(v), np.result_type(v)) if isinstance(v, arrays) else v for v in leaves),
-           np.shape(q0), np.shape(qd0))
-    try:
-        if key in _SHAPES_PASSED:
-            return
-    except TypeError:  # an unhashable static leaf: checked every call
-        key = None
+    key = None
+    if top_level():
+        leaves, treedef = jax.tree.flatten((dynamics, control, params))
+        key = (treedef, tuple((v.shape, v.dtype) if isinstance(v, (jax.Array, np.ndarray)) else v for v in leaves),
+               q0.shape, qd0.shape)
+        try:
+            if key in _SHAPES_PASSED:
+                return
+        except TypeError:  # an unhashable static leaf: checked every call
+            key = None
 
     def tau_of(q, qd):
         return jnp.zeros_like(qd) if control is None else control(t0, q, qd, params)

@@ -291,7 +291,8 @@ def test_configuration_check_given_as_a_static_method_is_called():
 def test_settings_are_remembered_by_typed_value():
     a = _ode.settings(solver="tsit5", max_steps=10, throw=True, progress=False, pid=None, save_ts=False)
     assert _ode.settings(solver="tsit5", max_steps=10, throw=True, progress=False, pid=None, save_ts=False) is a
-    assert _ode.settings(solver="tsit5", max_steps=1, throw=True, progress=False, pid=None, save_ts=False).max_steps == 1
+    one = _ode.settings(solver="tsit5", max_steps=1, throw=True, progress=False, pid=None, save_ts=False)
+    assert one.max_steps == 1
     with pytest.raises(ValueError, match="max_steps must be a positive integer"):  # True == 1, but not a step count
         _ode.settings(solver="tsit5", max_steps=True, throw=True, progress=False, pid=None, save_ts=False)
     listed = _ode.settings(solver="tsit5", max_steps=10, throw=True, progress=False, pid=[0.2, 0.4, 0.0],

@@ -130,6 +130,11 @@ def test_a_second_call_of_the_same_structure_traces_nothing():
     for _ in range(2):
         with pytest.raises(ModelError, match="dynamics returned shape"):
             simulate(bad, OSC, Q0, QD0, 0.0, 1.0)
+    from particlesim import simulate as simulate_module
+
+    kept = len(simulate_module._SHAPES_PASSED)  # under a caller's trace nothing is remembered (no tracers kept)
+    jax.jit(lambda w: simulate(lambda p, q, qd, tau: -p["w"] ** 2 * q, {"w": w}, Q0, QD0, 0.0, 0.1).q)(2.0)
+    assert len(simulate_module._SHAPES_PASSED) == kept
 
 
 def test_nan_initial_state_under_jit_raises_at_run_time():

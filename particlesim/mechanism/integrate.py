@@ -11,7 +11,8 @@ intact (the correction is of the size of the local error), needs no tuning const
 smooth function of state and parameters, so gradients pass through it. Its iteration count is fixed rather than
 a tolerance-driven loop because a data-dependent loop cannot be differentiated in reverse mode. Saved outputs
 are projected the same way (all of them when saved at given times, which fall inside steps, or with events; else
-the initial state, the final one ending a projected step). Mechanisms whose mass matrix is singular project with ``J J^T`` instead.
+the initial state, the final one ending a projected step). Mechanisms whose mass matrix is singular project with
+``J J^T`` instead.
 
 Adjoints: "checkpoint" (default), "direct" and "forward" differentiate the discrete computation, projections
 included. "backsolve" integrates the continuous adjoint equations of the vector field backwards in time; the
@@ -271,8 +272,9 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
     or a diffrax adjoint; ``None`` is "checkpoint". "backsolve" requires ``stabilise=False`` (module docstring).
     ``pid``: ``(pcoeff, icoeff, dcoeff)`` of the step-size controller, as in :func:`particlesim.simulate.simulate`
     (defaults (0, 1, 0) explicit, integral control; (0.3, 0.3, 0) implicit). A scene whose step is bounded by
-    stability rather than accuracy (a stiff tyre or spring under an explicit solver: a quarter of the steps rejected, step counts
-    nearly flat in ``rtol``) takes fewer steps with a less sensitive controller such as ``(0.2, 0.4, 0.0)``.
+    stability rather than accuracy (a stiff tyre or spring under an explicit solver: a quarter of the steps
+    rejected, step counts nearly flat in ``rtol``) takes fewer steps with a less sensitive controller such as
+    ``(0.2, 0.4, 0.0)``.
 
     ``events=True`` locates every switch of a tyre (contact closing or opening) instead of stepping across it:
     the run is split into smooth segments (each tyre's law fixed), each ending where a deflection crosses zero

@@ -22,8 +22,9 @@ RIGID_TOL = 1e-12
 MUJOCO_TOL = 1e-8
 
 
-def _three_kinds():
-    """A spatial block, a planar plate and a rod (free bodies, no joints), each given in its own frame."""
+def _three_kinds(points=None):
+    """A spatial block, a planar plate and a rod (free bodies, no joints), each given in its own frame; ``points``:
+    ``{name: (body, xyz)}`` fixed to them."""
     mb = MechanismBuilder()
     pose = (Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix(), np.array([0.4, -0.1, 0.2]))
     for n, p in (("s0", (0, 0, 0)), ("s1", (0.3, 0, 0)), ("s2", (0, 0.2, 0)), ("s3", (0, 0, 0.1))):
@@ -37,6 +38,8 @@ def _three_kinds():
     mb.particle("r0", (0, 1, 0))
     mb.particle("r1", (0.6, 1.3, 0.2))
     mb.body("rod", RigidInertia.slender_rod(0.5, (0, 1, 0), (0.6, 1.3, 0.2), moment=0.01), ["r0", "r1"])
+    for name, (body, xyz) in (points or {}).items():
+        mb.point(name, body, xyz)
     return mb.build(), pose
 
 
@@ -77,23 +80,8 @@ def test_poses_and_velocities_under_a_known_rigid_motion():
 def test_points_follow_a_known_rigid_motion():
     """Points fixed to a spatial block, a planar plate and a rod (and particles) move with the rigid motion applied
     to the whole set: ``Q p + c`` exactly."""
-    mb = MechanismBuilder()
-    pose = (Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix(), np.array([0.4, -0.1, 0.2]))
-    for n, p in (("s0", (0, 0, 0)), ("s1", (0.3, 0, 0)), ("s2", (0, 0.2, 0)), ("s3", (0, 0, 0.1))):
-        mb.particle(n, pose[0] @ np.asarray(p, float) + pose[1])
-    mb.body("block", RigidInertia(2.0, (0.1, 0.05, 0.02), np.diag([0.01, 0.02, 0.025])), ["s0", "s1", "s2", "s3"],
-            pose=pose, on_negative="ignore")
-    for n, p in (("p0", (1, 0, 0)), ("p1", (1.4, 0.1, 0)), ("p2", (1.1, 0.3, 0))):
-        mb.particle(n, p)
-    mb.body("plate", RigidInertia(1.0, (1.15, 0.12, 0.0), np.diag([0.004, 0.006, 0.01])), ["p0", "p1", "p2"],
-            on_negative="ignore")
-    mb.particle("r0", (0, 1, 0))
-    mb.particle("r1", (0.6, 1.3, 0.2))
-    mb.body("rod", RigidInertia.slender_rod(0.5, (0, 1, 0), (0.6, 1.3, 0.2), moment=0.01), ["r0", "r1"])
     given = {"on block": (0.7, -0.4, 0.9), "on plate": (1.3, 0.25, 0.0), "on rod": (0.45, 1.225, 0.15)}
-    for name, xyz in given.items():
-        mb.point(name, name.split()[1], xyz)
-    mech, x0 = mb.build()
+    (mech, x0), _ = _three_kinds({name: (name.split()[1], xyz) for name, xyz in given.items()})
     r0 = np.asarray(x0).reshape(-1, 3)
     names = list(given) + ["s2", "r1"]
     start = np.array(list(given.values()) + [r0[mech.free.index(mech.index(n))] for n in ("s2", "r1")])
