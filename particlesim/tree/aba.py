@@ -37,7 +37,7 @@ from ..spatial import sincos
 from .model import PRISMATIC, REVOLUTE, TreeModel
 
 __all__ = ["UNROLL_LINKS", "ONE_STATE_SWEEPS_DEPTH", "BATCH_CHUNK", "BATCH_CHUNK_ABOVE", "batch_chunks",
-           "batch_lanes", "LOOP_CHUNK_LINK_STATES", "LOOP_CHUNK_MAX", "supports_aba", "one_state_sweeps", "aba",
+           "batch_lanes", "state_by_state", "LOOP_CHUNK_LINK_STATES", "LOOP_CHUNK_MAX", "supports_aba", "one_state_sweeps", "aba",
            "aba_one_state"]
 
 
@@ -114,6 +114,17 @@ def batch_chunks(size: int, n_links: int = 0) -> int:
     if size <= BATCH_CHUNK_ABOVE:
         return 1
     return max(2, round(size / BATCH_CHUNK))
+
+
+def state_by_state(size: int, n_links: int) -> bool:
+    """Whether a batch of ``size`` states of a tree of ``n_links`` links runs as a loop over the one-state program
+    rather than through the batched sweeps: at most one state per link, for trees whose sweeps are written out (up to
+    :data:`UNROLL_LINKS` links). The written-out sweeps are hundreds of small kernels (about 29 per link), each paid
+    once per call whatever the batch, which a few states do not repay: Krang (18 links) on one core, per call,
+    1 / 4 / 8 / 16 states 66 / 135 / 181 / 280 us state by state against 245 / 278 / 304 / 355 us through the sweeps
+    (unpinned, where XLA hands the sweeps' kernels between two threads, 600-700 us); equal at about 24-32 states. A
+    7-link chain: equal at about 8 states."""
+    return 0 < size <= n_links <= UNROLL_LINKS
 
 
 def batch_lanes(per: int, n_links: int = 0) -> int:

@@ -17,6 +17,7 @@ everything else is a broadcast product or a product with the constant mask.
 from __future__ import annotations
 
 import functools
+import math
 from typing import NamedTuple, Optional
 
 import jax
@@ -24,11 +25,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .aba import aba, aba_one_state, batch_chunks, batch_lanes, one_state_sweeps, supports_aba
+from .aba import aba, aba_one_state, batch_chunks, batch_lanes, one_state_sweeps, state_by_state, supports_aba
 from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
-from .._jit import compiled
+from .._jit import _as_array, compiled
 from .._linalg import spd_solve_applied
 from ..errors import ModelError
 from .kinematics import _has_quaternions
@@ -282,26 +283,32 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     for deep trees (mean link depth above :data:`~.aba.ONE_STATE_SWEEPS_DEPTH`, such as long chains). A batch
     ``(..., nq)`` (leading axes broadcast between ``q``, ``qd`` and ``tau``): the articulated-body sweeps with the batch
     as the innermost axis of every operation, several times faster per state than ``jax.vmap`` of the one-state
-    call. Pass batches directly rather than vmapping; models with mimic, free or ball joints evaluate a batch state
-    by state.
+    call; a batch of at most one state per link runs state by state (:func:`~.aba.state_by_state`: the sweeps' fixed
+    cost is not repaid by a few states). Pass batches directly rather than vmapping; models with mimic, free or ball
+    joints evaluate a batch state by state.
 
     External wrenches enter through ``tau``: add :func:`~.kinematics.wrench_torques` (``J^T f``, eq. 16).
     ``smooth_friction=eps`` replaces ``sign(qd)`` by ``tanh(qd / eps)`` (differentiable at ``qd = 0``).
     """
     if _ndim(q) <= 1 and _ndim(qd) <= 1 and _ndim(tau) <= 1:  # one state (the common call: kept cheap)
         return _one_state(model, q, qd, tau, smooth_friction)
-    q, qd, tau = jnp.asarray(q), jnp.asarray(qd), jnp.asarray(tau)
-    for name, v in (("q", q), ("qd", qd), ("tau", tau)):
-        n = model.nq if name == "q" else model.nv
+    # Python's work before dispatch is a small batch's largest cost: arrays pass through as they are (a conversion
+    # of an array already on the device costs ~20 us), and equal batch axes skip broadcasting.
+    q, qd, tau = _as_array(q), _as_array(qd), _as_array(tau)
+    nq, nv = model.nq, model.nv  # properties: read once
+    for name, v, n in (("q", q, nq), ("qd", qd, nv), ("tau", tau, nv)):
         if v.ndim == 0 or v.shape[-1] != n:
             raise ModelError(f"{name} must have shape (..., {n}) (batch axes first, one entry per "
                              f"{'configuration entry' if name == 'q' else 'velocity coordinate'} last), got {v.shape}")
-    try:
-        batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1])
-    except ValueError:
-        raise ModelError(f"batch axes of q {q.shape}, qd {qd.shape} and tau {tau.shape} do not broadcast") from None
-    q, qd, tau = (jnp.broadcast_to(v, batch + v.shape[-1:]) for v in (q, qd, tau))
-    model.check_quaternions_nonzero(q)
+    if not q.shape[:-1] == qd.shape[:-1] == tau.shape[:-1]:
+        try:
+            batch = jnp.broadcast_shapes(q.shape[:-1], qd.shape[:-1], tau.shape[:-1])
+        except ValueError:
+            raise ModelError(f"batch axes of q {q.shape}, qd {qd.shape} and tau {tau.shape} do not "
+                             "broadcast") from None
+        q, qd, tau = (jnp.broadcast_to(v, batch + v.shape[-1:]) for v in (q, qd, tau))
+    if _has_quaternions(model.kinds):  # (a method looked up on an equinox module costs ~50 us: only when needed)
+        model.check_quaternions_nonzero(q)
     return _batched(model, q, qd, tau, smooth_friction)
 
 
@@ -317,10 +324,15 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction):
     be dispatched one by one when called outside ``jit``), with XLA's reductions on its YNNPACK kernels
     (:data:`particlesim._xla.BATCH_OPTIONS`: the sweeps' reductions run over the trailing batch axis). Batches run in
     chunks (:func:`~.aba.batch_chunks`: past 1408 states up to 32 links, past about 8800 / N states beyond), padded
-    as :func:`~.aba.batch_lanes` says (multiples of 64 lanes avoided; a multiple of 4 per chunk beyond 32 links)."""
+    as :func:`~.aba.batch_lanes` says (multiples of 64 lanes avoided; a multiple of 4 per chunk beyond 32 links). At
+    most one state per link (:func:`~.aba.state_by_state`): a loop over the one-state program."""
     if not supports_aba(model):
         per_state = functools.partial(_forward_dynamics, model, smooth_friction=smooth_friction)
         return jnp.vectorize(per_state, signature="(a),(b),(b)->(b)")(q, qd, tau)
+    if state_by_state(math.prod(q.shape[:-1]), model.n_joints):  # a few states: one after another
+        flat = tuple(x.reshape(-1, x.shape[-1]) for x in (q, qd, tau))
+        out = jax.lax.map(lambda x: _forward_dynamics(model, *x, smooth_friction), flat)
+        return out.reshape(q.shape[:-1] + out.shape[-1:])
     rhs = tau
     if any(x is not None for x in (model.viscous, model.coulomb, model.stiffness, model.limits)):
         extra = functools.partial(_generalised_forces, model, smooth_friction=smooth_friction)

@@ -35,6 +35,7 @@ Batches of parameter sets: build models with the same topology, stack them with
 
 from __future__ import annotations
 
+import functools
 from typing import Optional, Sequence
 
 import equinox as eqx
@@ -287,13 +288,13 @@ class TreeModel(eqx.Module):
     @property
     def nq(self) -> int:
         """Length of the configuration ``q`` (joints that do not mimic another; 7 entries per free joint)."""
-        return sum(n for n, m in zip(self.joint_nq, self.mimic) if not m)
+        return _sizes(self.kinds, self.mimic)[0]
 
     @property
     def nv(self) -> int:
         """Length of the velocity ``qd`` (and of ``qdd``, ``tau``; 6 entries per free joint). ``nq`` without a
         floating base."""
-        return sum(n for n, m in zip(self.joint_nv, self.mimic) if not m)
+        return _sizes(self.kinds, self.mimic)[1]
 
     @property
     def coordinate_names(self) -> tuple:
@@ -589,6 +590,13 @@ def _frames(frames, link_names, n) -> tuple:
             raise ModelError(f"frame '{name}': pose is not finite or not a rotation")
         out.append((str(name), int(owner), tuple(float(v) for v in r.ravel()), tuple(float(v) for v in p)))
     return tuple(out)
+
+
+@functools.lru_cache(maxsize=256)
+def _sizes(kinds: tuple, mimic: tuple) -> tuple[int, int]:
+    """``(nq, nv)`` of a model's joint kinds and mimic flags (read on every call of a public function: remembered)."""
+    own = [k for k, m in zip(kinds, mimic) if not m]
+    return sum(_NQ.get(k, 1) for k in own), sum(_NV.get(k, 1) for k in own)
 
 
 def _topological_order(parents, joint_names) -> tuple:

@@ -149,10 +149,14 @@ def test_batched_shapes_refused_by_name(small_tree):
         forward_dynamics(small_tree, np.zeros((2, n)), np.zeros((3, n)), np.zeros((2, n)))
 
 
-def test_batched_gradients(tiny_tree):
+@pytest.mark.parametrize("states", [2, 5])  # 2: state by state (at most one per link); 5: the sweeps
+def test_batched_gradients(tiny_tree, states):
+    from particlesim.tree.aba import state_by_state
+
     model = tiny_tree
+    assert state_by_state(states, model.n_joints) == (states == 2)
     rng = np.random.default_rng(10)
-    q, qd, tau = (jnp.asarray(rng.normal(size=(2, model.nq))) for _ in range(3))
+    q, qd, tau = (jnp.asarray(rng.normal(size=(states, model.nq))) for _ in range(3))
 
     def f(q, qd, tau, inertia):
         m = eqx.tree_at(lambda m: m.inertia, model, inertia)
@@ -234,12 +238,13 @@ def test_batches_evenly_divided_still_run_in_chunks(tiny_tree, monkeypatch):
     assert forward_dynamics(tiny_tree, empty, empty, empty).shape == (0, tiny_tree.nq)
 
 
-def test_a_batch_compiles_once_per_structure(small_tree):
+@pytest.mark.parametrize("states", [4, 8])  # 4: state by state; 8: the sweeps (5 links)
+def test_a_batch_compiles_once_per_structure(small_tree, states):
     """New parameter values and new states of the same shape reuse the compiled batch (trace counter)."""
     from particlesim import _ode
 
     rng = np.random.default_rng(11)
-    q, qd, tau = (rng.normal(size=(4, small_tree.nq)) for _ in range(3))
+    q, qd, tau = (rng.normal(size=(states, small_tree.nq)) for _ in range(3))
     forward_dynamics(small_tree, q, qd, tau)
     before = _ode.TRACES["forward_dynamics batch"]
     heavier = small_tree.with_params(inertia=small_tree.inertia * 1.3, viscous=small_tree.viscous * 2.0)
@@ -248,6 +253,34 @@ def test_a_batch_compiles_once_per_structure(small_tree):
     assert _ode.TRACES["forward_dynamics batch"] == before
     ref = jax.vmap(lambda a, b, c: forward_dynamics(heavier, a, b, c))(q + 0.1, qd, tau)
     assert max_rel(out, ref) <= SAME_RTOL
+
+
+def test_a_few_states_run_state_by_state(small_tree):
+    """A batch of at most one state per link (here 5 links: 1, 3 and 5 states, leading axes kept) loops over the
+    one-state program instead of running the written-out sweeps, whose hundreds of small kernels a few states do
+    not repay; 6 states take the sweeps. Both equal state by state, friction included."""
+    from particlesim.tree import aba as aba_module, dynamics
+
+    n = small_tree.n_joints
+    assert [aba_module.state_by_state(s, n) for s in (0, 1, 5, 6)] == [False, True, True, False]
+    assert not aba_module.state_by_state(40, 40)  # trees beyond UNROLL_LINKS keep their looped sweeps
+    rng = np.random.default_rng(16)
+    one = jax.jit(jax.vmap(lambda a, b, c: forward_dynamics(small_tree, a, b, c, smooth_friction=0.1)))
+    for lead in ((1,), (3,), (5,), (6,), (1, 5)):
+        q, qd, tau = (rng.normal(size=lead + (n,)) for _ in range(3))
+        calls = []
+
+        def spy(model, q, qd, tau):
+            calls.append(q.shape)
+            return aba_module.aba(model, q, qd, tau)
+
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(dynamics, "aba", spy)
+            out = jax.jit(lambda a, b, c: dynamics._batched.raw(small_tree, a, b, c, 0.1))(q, qd, tau)
+        assert bool(calls) == (int(np.prod(lead)) > n), lead
+        assert out.shape == q.shape
+        flat = (x.reshape(-1, n) for x in (q, qd, tau))
+        assert max_rel(out.reshape(-1, n), one(*flat)) <= SAME_RTOL
 
 
 def test_loop_sweeps_equal_written_out_sweeps_and_differentiate(small_tree, tiny_tree):
