@@ -37,6 +37,9 @@ NAME = "krang_dynamics"
 URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
 GRAVITY = (0.0, -9.81, 0.0)
 BATCH = 1024
+#: Small batches timed per call through the public function and through the sweeps alone (Krang has 18 links: up to
+#: 9 states, one per two links, run state by state).
+SMALL_BATCHES = (1, 8, 16, 32)
 INTERLEAVED_LAPS = 15
 DT = 1e-4
 
@@ -215,6 +218,21 @@ def run() -> dict:
     t = median_time(lambda: swept(model, jq, jqd, jtau), number=5, block=jax.block_until_ready)
     rows.append(_row(f"ours forward_dynamics (batch of {BATCH}, articulated-body sweeps)", t / BATCH, "per state",
                      c2b))
+    # Small batches (particlesim.tree.aba.state_by_state: at most one state per two links runs state by state): the public
+    # call per call, beside the written-out sweeps alone on the same states (compiled with the batch options).
+    from particlesim._xla import cpu_options
+    from particlesim.tree.aba import aba as sweeps_of
+
+    sweeps = jax.jit(lambda m, q, qd, tau: sweeps_of(m, q.T, qd.T, tau.T).T, compiler_options=cpu_options(batch=True))
+    err_small = 0.0
+    for size in SMALL_BATCHES:
+        args = (model, jq[:size], jqd[:size], jtau[:size])
+        a, b = (np.asarray(x) for x in (forward_dynamics(*args), sweeps(*args)))
+        err_small = max(err_small, float(np.max(np.abs(a - b)) / np.max(np.abs(b))))
+        t = median_time(lambda: jax.block_until_ready(forward_dynamics(*args)), number=50)
+        rows.append(_row(f"ours forward_dynamics (batch of {size}, public call)", t, "per call"))
+        t = median_time(lambda: jax.block_until_ready(sweeps(*args)), number=50)
+        rows.append(_row(f"ours articulated-body sweeps alone (batch of {size}, jit)", t, "per call"))
 
     # Order: everything single-threaded first (ours, Pinocchio and MuJoCo C on one thread, their interleaved
     # comparison, our rollouts), then the two-thread runs and MJX, whose thread pools and large programs left
@@ -382,11 +400,13 @@ def run() -> dict:
     return {
         "benchmark": NAME,
         "model": f"{URDF} ({n} joints), float64",
+        "n_links": model.n_joints,
         "environment": environment(),
         "rows": rows,
         "checks": {"max_rel_qdd_diff_ours_vs_pinocchio": err,
                    "max_rel_qdd_diff_ours_batch_vs_abaInParallel_all_states": err_batch,
-                   "max_rel_qdd_diff_mujoco_batch_vs_abaInParallel_all_states": err_mj},
+                   "max_rel_qdd_diff_mujoco_batch_vs_abaInParallel_all_states": err_mj,
+                   "max_rel_qdd_diff_small_batches_public_vs_sweeps": err_small},
         "batched_lap_ratios_quartiles": lap_ratios,
         "scan_vs_pin_aba_lap_ratios_quartiles": [float(np.percentile(scan_laps, p)) for p in (25, 50, 75)],
         "max_rel_qdd_diff_ours_one_core_vs_abaInParallel": err_one_core,
@@ -495,7 +515,21 @@ def markdown(results: dict) -> str:
                           f"jitted call with the same arguments: {pub / fa:.1f}× ({pub_s / fa_s:.1f}×) that floor "
                           "(goal ≤ 1.5×).")
         lines.append("")
+    small = [(k, by.get(f"ours forward_dynamics (batch of {k}, public call)"),
+              by.get(f"ours articulated-body sweeps alone (batch of {k}, jit)")) for k in SMALL_BATCHES]
+    small = [x for x in small if None not in x]
+    if small:
+        lines += ["Small batches, per call (this process, unpinned): "
+                  + "; ".join(f"{k} states {a:.0f} µs through the public function against {b:.0f} µs for the sweeps "
+                              "alone" for k, a, b in small)
+                  + f" (up to {model_links(results) // 2} states, one per two links, run state by state; the two agree to "
+                  f"{chk.get('max_rel_qdd_diff_small_batches_public_vs_sweeps', float('nan')):.0e} relative).", ""]
     return "\n".join(lines)
+
+
+def model_links(results: dict) -> int:
+    """Krang's link count (the state-by-state bound for its batches)."""
+    return int(results.get("n_links", 18))
 
 
 def main() -> dict:

@@ -118,13 +118,17 @@ def batch_chunks(size: int, n_links: int = 0) -> int:
 
 def state_by_state(size: int, n_links: int) -> bool:
     """Whether a batch of ``size`` states of a tree of ``n_links`` links runs as a loop over the one-state program
-    rather than through the batched sweeps: at most one state per link, for trees whose sweeps are written out (up to
-    :data:`UNROLL_LINKS` links). The written-out sweeps are hundreds of small kernels (about 29 per link), each paid
-    once per call whatever the batch, which a few states do not repay: Krang (18 links) on one core, per call,
+    rather than through the batched sweeps: at most one state per two links, for trees whose sweeps are written out
+    (up to :data:`UNROLL_LINKS` links). The written-out sweeps are hundreds of small kernels (about 29 per link), each paid
+    once per call whatever the batch, which a few states do not repay. Measured on two trees (jitted calls,
+    interleaved, one core; ``benchmarks/krang_dynamics.py`` has Krang's small-batch rows): Krang (18 links), per call,
     1 / 4 / 8 / 16 states 66 / 135 / 181 / 280 us state by state against 245 / 278 / 304 / 355 us through the sweeps
-    (unpinned, where XLA hands the sweeps' kernels between two threads, 600-700 us); equal at about 24-32 states. A
-    7-link chain: equal at about 8 states."""
-    return 0 < size <= n_links <= UNROLL_LINKS
+    (unpinned, where XLA hands the sweeps' kernels between two threads, 600-700 us), equal at about 24-32 states; a
+    7-link chain equal at about 8 states. In ``krang_dynamics`` (unpinned) 16 states took 331 us state by state
+    against 289 us for the sweeps alone, 1 and 8 states 115 and 199 us against 243 and 272 us: the bound keeps to
+    half the link count (Krang up to 9 states, the 7-link chain up to 3), on the safe side of every measurement;
+    other trees were not measured."""
+    return 0 < 2 * size <= n_links <= UNROLL_LINKS
 
 
 def batch_lanes(per: int, n_links: int = 0) -> int:

@@ -283,9 +283,10 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     for deep trees (mean link depth above :data:`~.aba.ONE_STATE_SWEEPS_DEPTH`, such as long chains). A batch
     ``(..., nq)`` (leading axes broadcast between ``q``, ``qd`` and ``tau``): the articulated-body sweeps with the batch
     as the innermost axis of every operation, several times faster per state than ``jax.vmap`` of the one-state
-    call; a batch of at most one state per link runs state by state (:func:`~.aba.state_by_state`: the sweeps' fixed
-    cost is not repaid by a few states). Pass batches directly rather than vmapping; models with mimic, free or ball
-    joints evaluate a batch state by state.
+    call; for trees up to :data:`~.aba.UNROLL_LINKS` links a batch of at most one state per two links runs state by state
+    (:func:`~.aba.state_by_state`: the sweeps' fixed cost is not repaid by a few states; the rule sees the batch
+    passed, not an outer ``jax.vmap`` around the call). Pass batches directly rather than vmapping; models with mimic,
+    free or ball joints evaluate a batch state by state.
 
     External wrenches enter through ``tau``: add :func:`~.kinematics.wrench_torques` (``J^T f``, eq. 16).
     ``smooth_friction=eps`` replaces ``sign(qd)`` by ``tanh(qd / eps)`` (differentiable at ``qd = 0``).
@@ -325,13 +326,13 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction):
     (:data:`particlesim._xla.BATCH_OPTIONS`: the sweeps' reductions run over the trailing batch axis). Batches run in
     chunks (:func:`~.aba.batch_chunks`: past 1408 states up to 32 links, past about 8800 / N states beyond), padded
     as :func:`~.aba.batch_lanes` says (multiples of 64 lanes avoided; a multiple of 4 per chunk beyond 32 links). At
-    most one state per link (:func:`~.aba.state_by_state`): a loop over the one-state program."""
+    most one state per two links (:func:`~.aba.state_by_state`): a loop over the one-state program."""
+    per_state = functools.partial(_forward_dynamics, model, smooth_friction=smooth_friction)
     if not supports_aba(model):
-        per_state = functools.partial(_forward_dynamics, model, smooth_friction=smooth_friction)
         return jnp.vectorize(per_state, signature="(a),(b),(b)->(b)")(q, qd, tau)
     if state_by_state(math.prod(q.shape[:-1]), model.n_joints):  # a few states: one after another
         flat = tuple(x.reshape(-1, x.shape[-1]) for x in (q, qd, tau))
-        out = jax.lax.map(lambda x: _forward_dynamics(model, *x, smooth_friction), flat)
+        out = jax.lax.map(lambda x: per_state(*x), flat)
         return out.reshape(q.shape[:-1] + out.shape[-1:])
     rhs = tau
     if any(x is not None for x in (model.viscous, model.coulomb, model.stiffness, model.limits)):

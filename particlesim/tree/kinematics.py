@@ -191,7 +191,8 @@ def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
     one-state forward dynamics inside a compiled loop took 13.6-14.1 us before, 11.6-11.7 us after (XLA's CPU runtime
     pays for every kernel it dispatches: 80 kernels became 37), 4 states vmapped inside a loop 9.6 -> 9.1 us per
     state. Wide ``jax.vmap`` batches compose link by link instead, where the rounds' extra arithmetic would show
-    (:func:`_composer`; a batch passed to :func:`~.dynamics.forward_dynamics` takes the articulated-body sweeps).
+    (:func:`_composer`; a batch of more states than half its links passed to :func:`~.dynamics.forward_dynamics` takes the
+    articulated-body sweeps).
     Derivatives are taken link by link (:func:`_compose_jvp`). Square 4 x 4 transforms throughout ran 11.8 us for
     one state but 19.4 us per state vmapped by 4; ``R`` and ``p`` composed separately, 12.5 and 10.0 us."""
     r_rel, p_rel = joint_transforms(model, q)

@@ -238,7 +238,7 @@ class TreeModel(eqx.Module):
                     if k == FREE and np.any(np.asarray(self.stiffness[at:at + 6])):
                         raise ModelError(f"joint '{joint_names[i]}': springs on free joints are not modelled")
                     at += _NV.get(k, 1)
-            nq = sum(_NQ.get(k, 1) for k, m in zip(kinds, self.mimic) if not m)
+            nq = _sizes(kinds, self.mimic)[0]
             if spring_ref is None:  # the zero configuration: angles 0, identity quaternions
                 spring_ref = np.concatenate([[0.0, 0.0, 0.0, 1.0] if k == BALL else [0.0] * _NQ.get(k, 1)
                                              for k, m in zip(kinds, self.mimic) if not m])
