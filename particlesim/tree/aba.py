@@ -127,7 +127,7 @@ def state_by_state(size: int, n_links: int) -> bool:
     7-link chain equal at about 8 states. In ``krang_dynamics`` (unpinned) 16 states took 331 us state by state
     against 289 us for the sweeps alone, 1 and 8 states 115 and 199 us against 243 and 272 us: the bound keeps to
     half the link count (Krang up to 9 states, the 7-link chain up to 3), on the safe side of every measurement;
-    other trees were not measured."""
+    other trees were not measured. :func:`~.dynamics.forward_dynamics` applies it to arrays passed from Python only."""
     return 0 < 2 * size <= n_links <= UNROLL_LINKS
 
 

@@ -30,6 +30,7 @@ from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
 from .._jit import _as_array, compiled
+from .._ode import _ArrayImpl
 from .._linalg import spd_solve_applied
 from ..errors import ModelError
 from .kinematics import _has_quaternions
@@ -284,8 +285,8 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     ``(..., nq)`` (leading axes broadcast between ``q``, ``qd`` and ``tau``): the articulated-body sweeps with the batch
     as the innermost axis of every operation, several times faster per state than ``jax.vmap`` of the one-state
     call; for trees up to :data:`~.aba.UNROLL_LINKS` links a batch of at most one state per two links runs state by state
-    (:func:`~.aba.state_by_state`: the sweeps' fixed cost is not repaid by a few states; the rule sees the batch
-    passed, not an outer ``jax.vmap`` around the call). Pass batches directly rather than vmapping; models with mimic,
+    (:func:`~.aba.state_by_state`: the sweeps' fixed cost is not repaid by a few states), when the arrays are passed
+    from Python; inside a caller's trace (``jit``, ``vmap``, ``grad``) a batch always takes the sweeps. Pass batches directly rather than vmapping; models with mimic,
     free or ball joints evaluate a batch state by state.
 
     External wrenches enter through ``tau``: add :func:`~.kinematics.wrench_torques` (``J^T f``, eq. 16).
@@ -310,7 +311,12 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
         q, qd, tau = (jnp.broadcast_to(v, batch + v.shape[-1:]) for v in (q, qd, tau))
     if _has_quaternions(model.kinds):  # (a method looked up on an equinox module costs ~50 us: only when needed)
         model.check_quaternions_nonzero(q)
-    return _batched(model, q, qd, tau, smooth_friction)
+    # A few states passed from Python (concrete arrays) run state by state; inside a caller's trace the sweeps stay,
+    # since an outer jax.vmap would turn the loop into a loop of vmapped one-state programs (64 parameter sets of 8
+    # Krang states: 11.4 ms against 6.5 ms for the sweeps, one core).
+    by_state = (type(q) is _ArrayImpl and type(qd) is _ArrayImpl and type(tau) is _ArrayImpl
+                and state_by_state(math.prod(q.shape[:-1]), model.n_joints))
+    return _batched(model, q, qd, tau, smooth_friction, by_state)
 
 
 def _ndim(x) -> int:
@@ -319,18 +325,19 @@ def _ndim(x) -> int:
     return np.ndim(x) if n is None else n
 
 
-@compiled("forward_dynamics batch", static=("smooth_friction",), arrays_only=True, batch=True)
-def _batched(model: TreeModel, q, qd, tau, smooth_friction):
+@compiled("forward_dynamics batch", static=("smooth_friction", "by_state"), arrays_only=True, batch=True)
+def _batched(model: TreeModel, q, qd, tau, smooth_friction, by_state=False):
     """A batch, compiled once per model structure and batch shape (hundreds of small operations would otherwise
     be dispatched one by one when called outside ``jit``), with XLA's reductions on its YNNPACK kernels
     (:data:`particlesim._xla.BATCH_OPTIONS`: the sweeps' reductions run over the trailing batch axis). Batches run in
     chunks (:func:`~.aba.batch_chunks`: past 1408 states up to 32 links, past about 8800 / N states beyond), padded
     as :func:`~.aba.batch_lanes` says (multiples of 64 lanes avoided; a multiple of 4 per chunk beyond 32 links). At
-    most one state per two links (:func:`~.aba.state_by_state`): a loop over the one-state program."""
+    most one state per two links passed from Python (``by_state``, decided by :func:`forward_dynamics` with
+    :func:`~.aba.state_by_state`): a loop over the one-state program."""
     per_state = functools.partial(_forward_dynamics, model, smooth_friction=smooth_friction)
     if not supports_aba(model):
         return jnp.vectorize(per_state, signature="(a),(b),(b)->(b)")(q, qd, tau)
-    if state_by_state(math.prod(q.shape[:-1]), model.n_joints):  # a few states: one after another
+    if by_state:  # a few states: one after another
         flat = tuple(x.reshape(-1, x.shape[-1]) for x in (q, qd, tau))
         out = jax.lax.map(lambda x: per_state(*x), flat)
         return out.reshape(q.shape[:-1] + out.shape[-1:])

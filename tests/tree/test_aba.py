@@ -167,17 +167,18 @@ def test_batched_shapes_refused_by_name(small_tree):
         forward_dynamics(small_tree, np.zeros((2, n)), np.zeros((3, n)), np.zeros((2, n)))
 
 
-@pytest.mark.parametrize("states", [1, 5])  # 1: state by state (at most one per two links); 5: the sweeps
-def test_batched_gradients(tiny_tree, states):
-    from particlesim.tree.aba import state_by_state
+@pytest.mark.parametrize("by_state", [False, True])  # the sweeps (any traced batch); a few states from Python
+def test_batched_gradients(tiny_tree, by_state):
+    from particlesim.tree import dynamics
 
     model = tiny_tree
-    assert state_by_state(states, model.n_joints) == (states == 1)
     rng = np.random.default_rng(10)
-    q, qd, tau = (jnp.asarray(rng.normal(size=(states, model.nq))) for _ in range(3))
+    q, qd, tau = (jnp.asarray(rng.normal(size=(2, model.nq))) for _ in range(3))
 
     def f(q, qd, tau, inertia):
         m = eqx.tree_at(lambda m: m.inertia, model, inertia)
+        if by_state:
+            return dynamics._batched.raw(m, q, qd, tau, 0.1, True)
         return forward_dynamics(m, q, qd, tau, smooth_friction=0.1)
 
     check_grads(jax.jit(f), (q, qd, tau, model.inertia), order=1, modes=("fwd", "rev"))
@@ -256,7 +257,7 @@ def test_batches_evenly_divided_still_run_in_chunks(tiny_tree, monkeypatch):
     assert forward_dynamics(tiny_tree, empty, empty, empty).shape == (0, tiny_tree.nq)
 
 
-@pytest.mark.parametrize("states", [2, 8])  # 2: state by state; 8: the sweeps (5 links)
+@pytest.mark.parametrize("states", [2, 8])  # 2: state by state (from Python); 8: the sweeps (5 links)
 def test_a_batch_compiles_once_per_structure(small_tree, states):
     """New parameter values and new states of the same shape reuse the compiled batch (trace counter)."""
     from particlesim import _ode
@@ -274,9 +275,10 @@ def test_a_batch_compiles_once_per_structure(small_tree, states):
 
 
 def test_a_few_states_run_state_by_state(small_tree):
-    """A batch of at most one state per two links (here 5 links: 1 and 2 states, leading axes kept) loops over the
-    one-state program instead of running the written-out sweeps, whose hundreds of small kernels a few states do
-    not repay; 3 and 6 states take the sweeps. Both equal state by state, friction included."""
+    """A batch of at most one state per two links passed from Python (here 5 links: 1 and 2 states, leading axes
+    kept) loops over the one-state program instead of running the written-out sweeps, whose hundreds of small kernels
+    a few states do not repay; 3 and 6 states, and any batch inside a caller's trace (here ``jit`` and ``vmap``),
+    take the sweeps. The loop runs no sweeps (a spy), and both paths equal state-by-state calls, friction included."""
     from particlesim.tree import aba as aba_module, dynamics
 
     n = small_tree.n_joints
@@ -284,21 +286,34 @@ def test_a_few_states_run_state_by_state(small_tree):
     assert not aba_module.state_by_state(1, 40)  # trees beyond UNROLL_LINKS keep their looped sweeps
     rng = np.random.default_rng(16)
     one = jax.jit(jax.vmap(lambda a, b, c: forward_dynamics(small_tree, a, b, c, smooth_friction=0.1)))
+    entry, chosen = dynamics._batched, []
+
+    def recorded(*args):
+        chosen.append(args[5])
+        return entry(*args)
+
     for lead in ((1,), (2,), (3,), (6,), (1, 2), (2, 3)):
         q, qd, tau = (rng.normal(size=lead + (n,)) for _ in range(3))
+        chosen.clear()
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(dynamics, "_batched", recorded)
+            out = forward_dynamics(small_tree, q, qd, tau, smooth_friction=0.1)  # from Python
+            jax.jit(lambda a, b, c: forward_dynamics(small_tree, a, b, c, smooth_friction=0.1))(q, qd, tau)
+            jax.vmap(lambda a: forward_dynamics(small_tree, a, qd, tau, smooth_friction=0.1))(q[None])
+        assert chosen == [2 * int(np.prod(lead)) <= n, False, False], lead
+        assert out.shape == q.shape
+        flat = [x.reshape(-1, n) for x in (q, qd, tau)]
+        assert max_rel(out.reshape(-1, n), one(*flat)) <= SAME_RTOL
         calls = []
 
         def spy(model, q, qd, tau):
             calls.append(q.shape)
             return aba_module.aba(model, q, qd, tau)
 
-        with pytest.MonkeyPatch.context() as mp:
+        with pytest.MonkeyPatch.context() as mp:  # the loop itself: no sweeps, the same values
             mp.setattr(dynamics, "aba", spy)
-            out = jax.jit(lambda a, b, c: dynamics._batched.raw(small_tree, a, b, c, 0.1))(q, qd, tau)
-        assert bool(calls) == (2 * int(np.prod(lead)) > n), lead
-        assert out.shape == q.shape
-        flat = (x.reshape(-1, n) for x in (q, qd, tau))
-        assert max_rel(out.reshape(-1, n), one(*flat)) <= SAME_RTOL
+            looped = jax.jit(lambda a, b, c: dynamics._batched.raw(small_tree, a, b, c, 0.1, True))(q, qd, tau)
+        assert not calls and max_rel(looped.reshape(-1, n), one(*flat)) <= SAME_RTOL
 
 
 def test_loop_sweeps_equal_written_out_sweeps_and_differentiate(small_tree, tiny_tree):
