@@ -26,7 +26,9 @@ import numpy as np
 
 from particlesim import compiler_options
 from particlesim.data import data_dir
+from particlesim._xla import cpu_options
 from particlesim.tree import forward_dynamics
+from particlesim.tree.aba import aba as sweeps_of
 from particlesim.io import load_urdf
 from particlesim.twins.urdf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
 from particlesim.simulate import simulate
@@ -218,11 +220,8 @@ def run() -> dict:
     t = median_time(lambda: swept(model, jq, jqd, jtau), number=5, block=jax.block_until_ready)
     rows.append(_row(f"ours forward_dynamics (batch of {BATCH}, articulated-body sweeps)", t / BATCH, "per state",
                      c2b))
-    # Small batches (particlesim.tree.aba.state_by_state: at most one state per two links runs state by state): the public
-    # call per call, beside the written-out sweeps alone on the same states (compiled with the batch options).
-    from particlesim._xla import cpu_options
-    from particlesim.tree.aba import aba as sweeps_of
-
+    # Small batches (particlesim.tree.aba.state_by_state: at most one state per two links runs state by state): the
+    # public call per call, beside the written-out sweeps alone on the same states (compiled with the batch options).
     sweeps = jax.jit(lambda m, q, qd, tau: sweeps_of(m, q.T, qd.T, tau.T).T, compiler_options=cpu_options(batch=True))
     err_small = 0.0
     for size in SMALL_BATCHES:
@@ -522,14 +521,10 @@ def markdown(results: dict) -> str:
         lines += ["Small batches, per call (this process, unpinned): "
                   + "; ".join(f"{k} states {a:.0f} µs through the public function against {b:.0f} µs for the sweeps "
                               "alone" for k, a, b in small)
-                  + f" (up to {model_links(results) // 2} states, one per two links, run state by state; the two agree to "
+                  + f" (up to {results.get('n_links', 18) // 2} states, one per two links, run state by state; the "
+                  "two agree to "
                   f"{chk.get('max_rel_qdd_diff_small_batches_public_vs_sweeps', float('nan')):.0e} relative).", ""]
     return "\n".join(lines)
-
-
-def model_links(results: dict) -> int:
-    """Krang's link count (the state-by-state bound for its batches)."""
-    return int(results.get("n_links", 18))
 
 
 def main() -> dict:

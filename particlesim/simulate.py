@@ -233,8 +233,8 @@ def simulate(
     _check_state(params, q0, qd0)
     t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
 
+    _ode.check_finite_eager("simulate", params, lambda: _ode.leaf_groups(params))  # concrete values, before tracing
     _check_output_shapes(dynamics, control, params, q0, qd0, t0_)
-    _ode.check_finite_eager("simulate", params, lambda: _ode.leaf_groups(params))  # concrete values
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:
         raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
     coulomb = getattr(params, "coulomb", None)

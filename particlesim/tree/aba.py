@@ -37,8 +37,8 @@ from ..spatial import sincos
 from .model import PRISMATIC, REVOLUTE, TreeModel
 
 __all__ = ["UNROLL_LINKS", "ONE_STATE_SWEEPS_DEPTH", "BATCH_CHUNK", "BATCH_CHUNK_ABOVE", "batch_chunks",
-           "batch_lanes", "state_by_state", "LOOP_CHUNK_LINK_STATES", "LOOP_CHUNK_MAX", "supports_aba", "one_state_sweeps", "aba",
-           "aba_one_state"]
+           "batch_lanes", "state_by_state", "LOOP_CHUNK_LINK_STATES", "LOOP_CHUNK_MAX", "supports_aba",
+           "one_state_sweeps", "aba", "aba_one_state"]
 
 
 @functools.lru_cache(maxsize=64)
@@ -119,15 +119,12 @@ def batch_chunks(size: int, n_links: int = 0) -> int:
 def state_by_state(size: int, n_links: int) -> bool:
     """Whether a batch of ``size`` states of a tree of ``n_links`` links runs as a loop over the one-state program
     rather than through the batched sweeps: at most one state per two links, for trees whose sweeps are written out
-    (up to :data:`UNROLL_LINKS` links). The written-out sweeps are hundreds of small kernels (about 29 per link), each paid
-    once per call whatever the batch, which a few states do not repay. Measured on two trees (jitted calls,
-    interleaved, one core; ``benchmarks/krang_dynamics.py`` has Krang's small-batch rows): Krang (18 links), per call,
-    1 / 4 / 8 / 16 states 66 / 135 / 181 / 280 us state by state against 245 / 278 / 304 / 355 us through the sweeps
-    (unpinned, where XLA hands the sweeps' kernels between two threads, 600-700 us), equal at about 24-32 states; a
-    7-link chain equal at about 8 states. In ``krang_dynamics`` (unpinned) 16 states took 331 us state by state
-    against 289 us for the sweeps alone, 1 and 8 states 115 and 199 us against 243 and 272 us: the bound keeps to
-    half the link count (Krang up to 9 states, the 7-link chain up to 3), on the safe side of every measurement;
-    other trees were not measured. :func:`~.dynamics.forward_dynamics` applies it to arrays passed from Python only."""
+    (up to :data:`UNROLL_LINKS` links; :func:`~.dynamics.forward_dynamics` applies it to arrays passed from Python
+    only). The written-out sweeps are about 29 small kernels per link, paid once per call whatever the batch, which a
+    few states do not repay. Krang (18 links), per call, jitted, one core: 1 / 8 states 66 / 181 us state by state
+    against 245 / 304 us through the sweeps; 16 states cost about the same either way (``krang_dynamics``' small-batch
+    rows); a 7-link chain breaks even near 8 states. Half the link count keeps on the safe side of both; other trees
+    were not measured."""
     return 0 < 2 * size <= n_links <= UNROLL_LINKS
 
 

@@ -33,7 +33,7 @@ from .._jit import _as_array, compiled
 from .._ode import _ArrayImpl
 from .._linalg import spd_solve_applied
 from ..errors import ModelError
-from .kinematics import _has_quaternions
+from .kinematics import _has_quaternions, _parameters_finite
 from .model import TreeModel
 
 __all__ = [
@@ -150,7 +150,8 @@ def _rnea(model: TreeModel, b: _Bodies, qd, qdd, gravity) -> Array:
 def _concrete_checks(model: TreeModel, arrays: dict) -> None:
     """Checks before a compiled entry is dispatched, for models with quaternions: the shapes of the state vectors,
     then concrete values (a zero quaternion would give NaN). Other models need none here: shapes are checked when
-    the entry is traced."""
+    the entry is traced. Every model: non-finite parameters refused by name."""
+    _parameters_finite(model)
     if _has_quaternions(model.kinds):
         _check(model, **{k: v for k, v in arrays.items() if k in ("q", "qd", "qdd", "tau")})
         model.check_quaternions_nonzero(arrays["q"])
@@ -284,10 +285,10 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     for deep trees (mean link depth above :data:`~.aba.ONE_STATE_SWEEPS_DEPTH`, such as long chains). A batch
     ``(..., nq)`` (leading axes broadcast between ``q``, ``qd`` and ``tau``): the articulated-body sweeps with the batch
     as the innermost axis of every operation, several times faster per state than ``jax.vmap`` of the one-state
-    call; for trees up to :data:`~.aba.UNROLL_LINKS` links a batch of at most one state per two links runs state by state
-    (:func:`~.aba.state_by_state`: the sweeps' fixed cost is not repaid by a few states), when the arrays are passed
-    from Python; inside a caller's trace (``jit``, ``vmap``, ``grad``) a batch always takes the sweeps. Pass batches directly rather than vmapping; models with mimic,
-    free or ball joints evaluate a batch state by state.
+    call. A batch of at most one state per two links of a tree up to :data:`~.aba.UNROLL_LINKS` links, passed from
+    Python, runs state by state (:func:`~.aba.state_by_state`: the sweeps' fixed cost is not repaid by a few states);
+    inside a caller's trace (``jit``, ``vmap``, ``grad``) a batch always takes the sweeps. Pass batches directly
+    rather than vmapping; models with mimic, free or ball joints evaluate a batch state by state.
 
     External wrenches enter through ``tau``: add :func:`~.kinematics.wrench_torques` (``J^T f``, eq. 16).
     ``smooth_friction=eps`` replaces ``sign(qd)`` by ``tanh(qd / eps)`` (differentiable at ``qd = 0``).
@@ -309,6 +310,7 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
             raise ModelError(f"batch axes of q {q.shape}, qd {qd.shape} and tau {tau.shape} do not "
                              "broadcast") from None
         q, qd, tau = (jnp.broadcast_to(v, batch + v.shape[-1:]) for v in (q, qd, tau))
+    _parameters_finite(model)
     if _has_quaternions(model.kinds):  # (a method looked up on an equinox module costs ~50 us: only when needed)
         model.check_quaternions_nonzero(q)
     # A few states passed from Python (concrete arrays) run state by state; inside a caller's trace the sweeps stay,

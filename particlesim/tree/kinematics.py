@@ -10,6 +10,7 @@ over the angular velocity of link ``j``: ``[v; w] = J_j qd`` (the report's ``\\m
 from __future__ import annotations
 
 import functools
+import weakref
 
 import jax
 import jax.numpy as jnp
@@ -17,6 +18,7 @@ import numpy as np
 from jax.custom_batching import custom_vmap
 from jaxtyping import Array, ArrayLike, Float
 
+from .. import _ode
 from .._jit import compiled
 from ..errors import ModelError
 from ..spatial import quaternion_to_matrix, unit_axis_rotations
@@ -82,8 +84,38 @@ def _has_quaternions(kinds: tuple) -> bool:
     return FREE in kinds or BALL in kinds
 
 
+#: TreeModels whose parameters passed :func:`_parameters_finite`: ``id -> weak reference``.
+_FINITE: dict = {}
+
+
+def _parameters_finite(model: TreeModel) -> None:
+    """Before dispatch: a NaN or infinite parameter (set with ``with_params`` or ``eqx.tree_at``, which do not check)
+    is refused by name (``ModelError``) instead of giving NaN. Traced parameters pass (the caller's own entry checks
+    them). A model whose parameters are all JAX arrays is remembered by identity while it lives: its fields cannot be
+    reassigned and hold arrays directly (no containers), and JAX arrays are immutable, so it stays as checked; the
+    identity test costs well under a microsecond where :func:`particlesim._ode.check_finite_eager`'s comparison of
+    leaves costs ~15 us of a ~80 us single call. Models holding NumPy arrays are checked on every call."""
+    ref = _FINITE.get(id(model))
+    if ref is not None and ref() is model:
+        return
+    groups = _parameter_groups(model)
+    _ode.check_finite("TreeModel", groups)  # raises ModelError on a concrete non-finite entry
+    if all(type(arr) is _ode._ArrayImpl for _, arr in groups):
+        key = id(model)
+        _FINITE[key] = weakref.ref(model, lambda _, key=key: _FINITE.pop(key, None))
+
+
+def _parameter_groups(model: TreeModel) -> list:
+    """``(label, array)`` of every parameter; the per-link arrays (inertia, joint origins) labelled link by link."""
+    per_link = {".inertia": "inertia", ".origin_xyz": "origin_xyz"}
+    return [([f"{per_link[label]} of link '{name}'" for name in model.link_names], leaf) if label in per_link
+             else (label, leaf) for label, leaf in _ode.leaf_groups(model)]
+
+
 def _quaternion_checks(model: TreeModel, arrays: dict) -> None:
-    """Before dispatch: a concrete zero quaternion is named (the compiled function would return NaN)."""
+    """Before dispatch: a non-finite parameter and a concrete zero quaternion are named (the compiled function
+    would return NaN)."""
+    _parameters_finite(model)
     if _has_quaternions(model.kinds):
         q = arrays["q"]
         if jnp.shape(q)[-1:] == (model.nq,):
@@ -191,8 +223,8 @@ def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
     one-state forward dynamics inside a compiled loop took 13.6-14.1 us before, 11.6-11.7 us after (XLA's CPU runtime
     pays for every kernel it dispatches: 80 kernels became 37), 4 states vmapped inside a loop 9.6 -> 9.1 us per
     state. Wide ``jax.vmap`` batches compose link by link instead, where the rounds' extra arithmetic would show
-    (:func:`_composer`; a batch of more states than half its links passed to :func:`~.dynamics.forward_dynamics` takes the
-    articulated-body sweeps).
+    (:func:`_composer`; a batch passed to :func:`~.dynamics.forward_dynamics` takes the articulated-body sweeps unless
+    it is a few states from Python).
     Derivatives are taken link by link (:func:`_compose_jvp`). Square 4 x 4 transforms throughout ran 11.8 us for
     one state but 19.4 us per state vmapped by 4; ``R`` and ``p`` composed separately, 12.5 and 10.0 us."""
     r_rel, p_rel = joint_transforms(model, q)

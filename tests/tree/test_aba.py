@@ -1,6 +1,8 @@
 """Batched forward dynamics (articulated-body sweeps, batch innermost) and the O(N) one-state path of large trees,
 against Pinocchio's ABA, our recursive Newton–Euler inverse dynamics, and per-state evaluation."""
 
+import contextlib
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -21,6 +23,22 @@ ROUNDTRIP_RTOL = 1e-10
 #: Batched against one state at a time (the same equations, different summation order).
 SAME_RTOL = 1e-12
 N_STATES = 32
+
+
+@contextlib.contextmanager
+def _sweeps_seen():
+    """Records the batch width (lanes) of every call of the batched sweeps traced inside the block."""
+    from particlesim.tree import aba as aba_module, dynamics
+
+    widths = []
+
+    def spy(model, q, qd, tau):
+        widths.append(q.shape[1])
+        return aba_module.aba(model, q, qd, tau)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dynamics, "aba", spy)
+        yield widths
 
 
 def _pin_aba(oracle, q, qd, tau):
@@ -88,14 +106,7 @@ def test_large_tree_batches_run_in_chunks_against_pinocchio(case):
     q = rng.uniform(-2.0, 2.0, (100, model.n_joints))
     qd, tau = rng.normal(size=(2, 100, model.n_joints))
     assert max_rel(forward_dynamics(model, q, qd, tau), _pin_aba(oracle, q, qd, tau)) <= PIN_RTOL
-    widths = []
-
-    def spy(model, q, qd, tau):
-        widths.append(q.shape[1])
-        return aba_module.aba(model, q, qd, tau)
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(dynamics, "aba", spy)
+    with _sweeps_seen() as widths:
         jax.make_jaxpr(lambda x: dynamics._batched.raw(model, x, x, x, None))(jnp.asarray(q))
     assert widths == [52]  # the public batch entry chunks: 2 chunks of 52 lanes
 
@@ -243,15 +254,9 @@ def test_batches_evenly_divided_still_run_in_chunks(tiny_tree, monkeypatch):
 
     monkeypatch.setattr(aba_module, "BATCH_CHUNK_ABOVE", 4)
     monkeypatch.setattr(aba_module, "BATCH_CHUNK", 8)
-    widths = []
-
-    def spy(model, q, qd, tau):
-        widths.append(q.shape[1])
-        return aba_module.aba(model, q, qd, tau)
-
-    monkeypatch.setattr(dynamics, "aba", spy)
     x = jnp.zeros((16, tiny_tree.nq))
-    jax.make_jaxpr(lambda x: dynamics._batched.raw(tiny_tree, x, x, x, None))(x)
+    with _sweeps_seen() as widths:
+        jax.make_jaxpr(lambda x: dynamics._batched.raw(tiny_tree, x, x, x, None))(x)
     assert widths == [8]
     empty = np.zeros((0, tiny_tree.nq))
     assert forward_dynamics(tiny_tree, empty, empty, empty).shape == (0, tiny_tree.nq)
@@ -304,16 +309,9 @@ def test_a_few_states_run_state_by_state(small_tree):
         assert out.shape == q.shape
         flat = [x.reshape(-1, n) for x in (q, qd, tau)]
         assert max_rel(out.reshape(-1, n), one(*flat)) <= SAME_RTOL
-        calls = []
-
-        def spy(model, q, qd, tau):
-            calls.append(q.shape)
-            return aba_module.aba(model, q, qd, tau)
-
-        with pytest.MonkeyPatch.context() as mp:  # the loop itself: no sweeps, the same values
-            mp.setattr(dynamics, "aba", spy)
+        with _sweeps_seen() as widths:  # the loop itself: no sweeps, the same values
             looped = jax.jit(lambda a, b, c: dynamics._batched.raw(small_tree, a, b, c, 0.1, True))(q, qd, tau)
-        assert not calls and max_rel(looped.reshape(-1, n), one(*flat)) <= SAME_RTOL
+        assert not widths and max_rel(looped.reshape(-1, n), one(*flat)) <= SAME_RTOL
 
 
 def test_loop_sweeps_equal_written_out_sweeps_and_differentiate(small_tree, tiny_tree):

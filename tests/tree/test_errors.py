@@ -209,3 +209,32 @@ def test_links_merged_by_fixed_joints_keep_their_frames_as_pinocchio_does():
                                        atol=1e-12)
     with pytest.raises(ModelError, match="unknown link 'tool9'.*frames \\['base', "):
         link_jacobian(m, jnp.zeros(2), "tool9")
+
+
+def test_non_finite_parameters_refused_by_name_before_dispatch():
+    """A NaN or inf put into a model after construction (``with_params``, ``eqx.tree_at``: unchecked) is refused by
+    every tree entry, one state or a batch, naming the parameter and the link, instead of returning NaN. A model of
+    NumPy arrays that passed once is checked again (changed in place here)."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    from particlesim.tree import forward_dynamics, link_jacobian, mass_matrix
+
+    model = load_urdf(_urdf(GOOD))
+    q = np.zeros(2)
+    assert np.all(np.isfinite(np.asarray(forward_dynamics(model, q, q, q))))  # the intact model passes
+    bad = model.with_params(inertia=model.inertia.at[1, 0].set(jnp.nan))
+    calls = [lambda m: forward_dynamics(m, q, q, q), lambda m: forward_dynamics(m, np.zeros((3, 2)), q, q),
+             lambda m: forward_dynamics(m, np.zeros((40, 2)), q, q), lambda m: mass_matrix(m, q),
+             lambda m: link_jacobian(m, q, "b")]
+    for call in calls:
+        with pytest.raises(ModelError, match=r"inertia of link 'b' is not finite"):
+            call(bad)
+    far = model.with_params(origin_xyz=model.origin_xyz.at[0, 2].set(jnp.inf))
+    with pytest.raises(ModelError, match=r"origin_xyz of link 'a' is not finite"):
+        mass_matrix(far, q)
+    held = eqx.tree_at(lambda m: m.viscous, model, np.zeros(2), is_leaf=lambda x: x is None)
+    forward_dynamics(held, q, q, q)  # passes, and is not remembered (NumPy leaves are mutable)
+    held.viscous[0] = np.nan
+    with pytest.raises(ModelError, match=r"viscous is not finite"):
+        forward_dynamics(held, q, q, q)
