@@ -39,9 +39,9 @@ NAME = "krang_dynamics"
 URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
 GRAVITY = (0.0, -9.81, 0.0)
 BATCH = 1024
-#: Small batches timed per call through the public function and through the sweeps alone (Krang has 18 links: up to
-#: 9 states, one per two links, run state by state).
-SMALL_BATCHES = (1, 8, 16, 32)
+#: Small batches timed per call through the public function and through the sweeps alone, each with its compile time
+#: (Krang has 18 links: up to 18 states, one per link, run state by state).
+SMALL_BATCHES = (1, 8, 18, 32)
 INTERLEAVED_LAPS = 15
 DT = 1e-4
 
@@ -220,18 +220,21 @@ def run() -> dict:
     t = median_time(lambda: swept(model, jq, jqd, jtau), number=5, block=jax.block_until_ready)
     rows.append(_row(f"ours forward_dynamics (batch of {BATCH}, articulated-body sweeps)", t / BATCH, "per state",
                      c2b))
-    # Small batches (particlesim.tree.aba.state_by_state: at most one state per two links runs state by state): the
-    # public call per call, beside the written-out sweeps alone on the same states (compiled with the batch options).
+    # Small batches (particlesim.tree.aba.state_by_state: at most one state per link runs state by state): the public
+    # call per call, beside the written-out sweeps alone on the same states (compiled with the batch options), each
+    # with its compile time (the public call's: its first call, tracing included).
     sweeps = jax.jit(lambda m, q, qd, tau: sweeps_of(m, q.T, qd.T, tau.T).T, compiler_options=cpu_options(batch=True))
     err_small = 0.0
     for size in SMALL_BATCHES:
         args = (model, jq[:size], jqd[:size], jtau[:size])
-        a, b = (np.asarray(x) for x in (forward_dynamics(*args), sweeps(*args)))
+        c_pub, a = timed(lambda: np.asarray(forward_dynamics(*args)))
+        c_sw, compiled_sweeps = timed(lambda: sweeps.lower(*args).compile())
+        b = np.asarray(compiled_sweeps(*args))
         err_small = max(err_small, float(np.max(np.abs(a - b)) / np.max(np.abs(b))))
         t = median_time(lambda: jax.block_until_ready(forward_dynamics(*args)), number=50)
-        rows.append(_row(f"ours forward_dynamics (batch of {size}, public call)", t, "per call"))
-        t = median_time(lambda: jax.block_until_ready(sweeps(*args)), number=50)
-        rows.append(_row(f"ours articulated-body sweeps alone (batch of {size}, jit)", t, "per call"))
+        rows.append(_row(f"ours forward_dynamics (batch of {size}, public call)", t, "per call", c_pub))
+        t = median_time(lambda: jax.block_until_ready(compiled_sweeps(*args)), number=50)
+        rows.append(_row(f"ours articulated-body sweeps alone (batch of {size}, jit)", t, "per call", c_sw))
 
     # Order: everything single-threaded first (ours, Pinocchio and MuJoCo C on one thread, their interleaved
     # comparison, our rollouts), then the two-thread runs and MJX, whose thread pools and large programs left
@@ -518,10 +521,18 @@ def markdown(results: dict) -> str:
               by.get(f"ours articulated-body sweeps alone (batch of {k}, jit)")) for k in SMALL_BATCHES]
     small = [x for x in small if None not in x]
     if small:
+        comp = {r["name"]: r.get("compile_s") for r in results["rows"]}
+
+        def cs(name):
+            c = comp.get(name)
+            return "" if c is None else f" (compile {c:.1f} s)"
+
         lines += ["Small batches, per call (this process, unpinned): "
-                  + "; ".join(f"{k} states {a:.0f} µs through the public function against {b:.0f} µs for the sweeps "
-                              "alone" for k, a, b in small)
-                  + f" (up to {results.get('n_links', 18) // 2} states, one per two links, run state by state; the "
+                  + "; ".join(f"{k} states {a:.0f} µs through the public function"
+                              f"{cs(f'ours forward_dynamics (batch of {k}, public call)')} against {b:.0f} µs for the "
+                              f"sweeps alone{cs(f'ours articulated-body sweeps alone (batch of {k}, jit)')}"
+                              for k, a, b in small)
+                  + f" (up to {results.get('n_links', 18)} states, one per link, run state by state; the "
                   "two agree to "
                   f"{chk.get('max_rel_qdd_diff_small_batches_public_vs_sweeps', float('nan')):.0e} relative).", ""]
     return "\n".join(lines)

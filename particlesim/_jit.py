@@ -37,7 +37,7 @@ def _as_array(x):
 
 
 def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = None, arrays_only: bool = False,
-             batch: bool = False):
+             batch: bool | str = False):
     """Decorator: ``fn(model, *state, **settings)`` as one compiled entry (module docstring).
 
     Every parameter after the model, except those named in ``static`` (settings: strings, numbers, ``None``, part of
@@ -46,8 +46,8 @@ def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = 
     model is an array (a :class:`~particlesim.tree.TreeModel`), so the entry jits the function itself (its dispatch
     is a few microseconds cheaper than sorting leaves into arrays and static values, which a mechanism's force-law
     callables need). Called at top level, every entry is compiled with :func:`particlesim._xla.cpu_options` (with
-    the batch options for ``batch``, which needs ``arrays_only``; :class:`particlesim._xla.TopJit`); inside a
-    caller's trace it is inlined. The undecorated function stays available as ``.raw`` for callers already inside
+    the batch options for ``batch``, True or "wide", which needs ``arrays_only``; :class:`particlesim._xla.TopJit`);
+    inside a caller's trace it is inlined. The undecorated function stays available as ``.raw`` for callers already inside
     a trace."""
     if batch and not arrays_only:
         raise TypeError(f"compiled({name!r}): batch=True needs arrays_only=True (the batch options are the tree "

@@ -32,18 +32,29 @@ BATCH_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type":
                  "LIBRARY_FUSION_TYPE_DOT,LIBRARY_FUSION_TYPE_ELTWISE,LIBRARY_FUSION_TYPE_REDUCE"}
 
 
-def cpu_options(batch: bool = False) -> dict:
+#: Wide batches (``batch="wide"``: the tree batch entry at :data:`particlesim.tree.aba.WIDE_BATCH` states or more)
+#: keep XLA's fusion emitters and take :data:`BATCH_OPTIONS` alone: YNNPACK runs most of the sweeps there and the
+#: operations left to XLA run 3-5 % faster from its fusion emitters, with no slower compile (Krang on one core, per
+#: state, interleaved: 712 / 1024 / 1408 / 2048 / 4096 states 5.37 / 6.25 / 6.32 / 5.91 / 5.80 us against 5.61 / 6.68
+#: / 6.52 / 6.45 / 6.09 us with :data:`COMPILE_OPTIONS`; compile 4.2-5.6 against 5.2-5.9 s). Below about 700 states
+#: XLA compiles more of the sweeps itself, and its fusion emitters cost seconds more there (16 / 264 states: 15.4 /
+#: 10.3 s against 10.8 / 8.7 s), so narrower batches keep :data:`COMPILE_OPTIONS`.
+_GROUPS = {False: (COMPILE_OPTIONS,), True: (COMPILE_OPTIONS, BATCH_OPTIONS), "wide": (BATCH_OPTIONS,)}
+
+
+def cpu_options(batch: bool | str = False) -> dict:
     """The compiler options of our top-level programs: :data:`COMPILE_OPTIONS`, with :data:`BATCH_OPTIONS` for
-    ``batch`` (the batched tree forward dynamics), each group kept only when the default backend is the CPU and this
-    XLA knows it (checked once by compiling a trivial program with it), else ``{}``. A copy."""
-    return dict(_cpu_options(bool(batch)))
+    ``batch`` (the batched tree forward dynamics), :data:`BATCH_OPTIONS` alone for ``batch="wide"`` (wide batches of
+    it), each group kept only when the default backend is the CPU and this XLA knows it (checked once by compiling a
+    trivial program with it), else ``{}``. A copy."""
+    return dict(_cpu_options(batch if batch == "wide" else bool(batch)))
 
 
 @functools.lru_cache(maxsize=None)
-def _cpu_options(batch: bool) -> dict:
+def _cpu_options(batch: bool | str) -> dict:
     if jax.default_backend() != "cpu":
         return {}
-    groups = (COMPILE_OPTIONS, BATCH_OPTIONS) if batch else (COMPILE_OPTIONS,)
+    groups = _GROUPS[batch]
     options = {}
     for group in groups:
         try:
@@ -71,12 +82,12 @@ def top_level() -> bool:
 
 
 class TopJit:
-    """``jax.jit(fn, **kwargs)``, compiled with :func:`cpu_options` (``batch`` selects the batch options) when
+    """``jax.jit(fn, **kwargs)``, compiled with :func:`cpu_options` (``batch``: True or "wide") when
     called or lowered at top level; inside a trace it is the plain ``jax.jit``, inlined into the caller's program.
     The top-level jit is built on first use, once the backend is up. Other attributes (``trace``, ``eval_shape``,
     ``clear_cache``...) are the plain jit's."""
 
-    def __init__(self, fn, *, batch: bool = False, **kwargs):
+    def __init__(self, fn, *, batch: bool | str = False, **kwargs):
         functools.update_wrapper(self, fn)
         self._options = kwargs.pop("compiler_options", None) or {}  # a caller's own, on top of ours
         self._fn, self._batch, self._kwargs = fn, batch, kwargs

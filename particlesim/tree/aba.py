@@ -37,7 +37,7 @@ from ..spatial import sincos
 from .model import PRISMATIC, REVOLUTE, TreeModel
 
 __all__ = ["UNROLL_LINKS", "ONE_STATE_SWEEPS_DEPTH", "BATCH_CHUNK", "BATCH_CHUNK_ABOVE", "batch_chunks",
-           "batch_lanes", "state_by_state", "LOOP_CHUNK_LINK_STATES", "LOOP_CHUNK_MAX", "supports_aba",
+           "batch_lanes", "state_by_state", "WIDE_BATCH", "wide_batch", "LOOP_CHUNK_LINK_STATES", "LOOP_CHUNK_MAX", "supports_aba",
            "one_state_sweeps", "aba", "aba_one_state"]
 
 
@@ -91,6 +91,10 @@ UNROLL_LINKS = 32
 BATCH_CHUNK = 1024
 #: Batches up to this size run whole (their chunks would fall to about 700 states).
 BATCH_CHUNK_ABOVE = 1408
+#: Batches of at least this many states of a tree up to :data:`UNROLL_LINKS` links (every chunk of
+#: :func:`batch_chunks` is as wide) are compiled with XLA's fusion emitters kept (:func:`wide_batch`;
+#: ``particlesim._xla.cpu_options(batch="wide")`` says why).
+WIDE_BATCH = 705
 
 
 #: Trees beyond :data:`UNROLL_LINKS` links loop over links with stacked buffers of every link's row for the whole
@@ -118,14 +122,22 @@ def batch_chunks(size: int, n_links: int = 0) -> int:
 
 def state_by_state(size: int, n_links: int) -> bool:
     """Whether a batch of ``size`` states of a tree of ``n_links`` links runs as a loop over the one-state program
-    rather than through the batched sweeps: at most one state per two links, for trees whose sweeps are written out
-    (up to :data:`UNROLL_LINKS` links; :func:`~.dynamics.forward_dynamics` applies it to arrays passed from Python
-    only). The written-out sweeps are about 29 small kernels per link, paid once per call whatever the batch, which a
-    few states do not repay. Krang (18 links), per call, jitted, one core: 1 / 8 states 66 / 181 us state by state
-    against 245 / 304 us through the sweeps; 16 states cost about the same either way (``krang_dynamics``' small-batch
-    rows); a 7-link chain breaks even near 8 states. Half the link count keeps on the safe side of both; other trees
-    were not measured."""
-    return 0 < 2 * size <= n_links <= UNROLL_LINKS
+    rather than through the batched sweeps: at most one state per link, for trees whose sweeps are written out (up to
+    :data:`UNROLL_LINKS` links; :func:`~.dynamics.forward_dynamics` applies it to arrays passed from Python only). The
+    written-out sweeps are about 29 small kernels per link, paid once per call whatever the batch, and below about 700
+    states XLA compiles most of them with its own emitters: 6-12 s for Krang's sweeps against under a second for the
+    loop. Measured (jitted, interleaved; one core / unpinned): Krang 12 states 245 / 266 us per call state by state
+    against 332 / 351 us through the sweeps, 18 states 318 / 346 against 375 / 410 us, 36 states 551 against 454 us
+    (the sweeps ahead from about 30 states, 1.6 per link); serial chains of 7 / 12 links, 7 states 190 against 256 us
+    and 144 against 448 us, 14 states 215 against 188 us and 237 against 485 us (unpinned). A bound of one state per
+    two links (used before) left 10-18 Krang states on the sweeps: slower, and compiled in 7 s instead of 0.8 s."""
+    return 0 < size <= n_links <= UNROLL_LINKS
+
+
+def wide_batch(size: int, n_links: int) -> bool:
+    """Whether a batch of ``size`` states of a tree of ``n_links`` links is compiled as a wide batch (at least
+    :data:`WIDE_BATCH` states, written-out sweeps: up to :data:`UNROLL_LINKS` links)."""
+    return size >= WIDE_BATCH and n_links <= UNROLL_LINKS
 
 
 def batch_lanes(per: int, n_links: int = 0) -> int:

@@ -75,7 +75,7 @@ def test_batched_forward_dynamics_against_pinocchio(case):
 
 
 def test_a_few_states_against_pinocchio(case):
-    """A batch of at most one state per two links (state by state, on the written-out tree) through the public function,
+    """A batch of at most one state per link (state by state, on the written-out tree) through the public function,
     with leading axes that broadcast, against Pinocchio's ABA."""
     from particlesim.tree.aba import state_by_state
 
@@ -262,32 +262,35 @@ def test_batches_evenly_divided_still_run_in_chunks(tiny_tree, monkeypatch):
     assert forward_dynamics(tiny_tree, empty, empty, empty).shape == (0, tiny_tree.nq)
 
 
-@pytest.mark.parametrize("states", [2, 8])  # 2: state by state (from Python); 8: the sweeps (5 links)
+@pytest.mark.parametrize("states", [2, 8, 705])  # 5 links: state by state (from Python), the sweeps, a wide batch
 def test_a_batch_compiles_once_per_structure(small_tree, states):
     """New parameter values and new states of the same shape reuse the compiled batch (trace counter)."""
     from particlesim import _ode
+    from particlesim.tree.aba import WIDE_BATCH
 
+    name = "forward_dynamics wide batch" if states >= WIDE_BATCH else "forward_dynamics batch"
     rng = np.random.default_rng(11)
     q, qd, tau = (rng.normal(size=(states, small_tree.nq)) for _ in range(3))
     forward_dynamics(small_tree, q, qd, tau)
-    before = _ode.TRACES["forward_dynamics batch"]
+    before = _ode.TRACES[name]
+    assert before > 0
     heavier = small_tree.with_params(inertia=small_tree.inertia * 1.3, viscous=small_tree.viscous * 2.0)
     out = forward_dynamics(heavier, q + 0.1, qd, tau)
     forward_dynamics(small_tree, q - 0.2, qd * 3.0, tau)
-    assert _ode.TRACES["forward_dynamics batch"] == before
+    assert _ode.TRACES[name] == before
     ref = jax.vmap(lambda a, b, c: forward_dynamics(heavier, a, b, c))(q + 0.1, qd, tau)
     assert max_rel(out, ref) <= SAME_RTOL
 
 
 def test_a_few_states_run_state_by_state(small_tree):
-    """A batch of at most one state per two links passed from Python (here 5 links: 1 and 2 states, leading axes
+    """A batch of at most one state per link passed from Python (here 5 links: 1, 2, 3 and 4 states, leading axes
     kept) loops over the one-state program instead of running the written-out sweeps, whose hundreds of small kernels
-    a few states do not repay; 3 and 6 states, and any batch inside a caller's trace (here ``jit`` and ``vmap``),
-    take the sweeps. The loop runs no sweeps (a spy), and both paths equal state-by-state calls, friction included."""
+    a few states do not repay; 6 states, and any batch inside a caller's trace (here ``jit`` and ``vmap``), take the
+    sweeps. The loop runs no sweeps (a spy), and both paths equal state-by-state calls, friction included."""
     from particlesim.tree import aba as aba_module, dynamics
 
     n = small_tree.n_joints
-    assert [aba_module.state_by_state(s, n) for s in (0, 1, 2, 3, 6)] == [False, True, True, False, False]
+    assert [aba_module.state_by_state(s, n) for s in (0, 1, 2, 5, 6)] == [False, True, True, True, False]
     assert not aba_module.state_by_state(1, 40)  # trees beyond UNROLL_LINKS keep their looped sweeps
     rng = np.random.default_rng(16)
     one = jax.jit(jax.vmap(lambda a, b, c: forward_dynamics(small_tree, a, b, c, smooth_friction=0.1)))
@@ -297,7 +300,7 @@ def test_a_few_states_run_state_by_state(small_tree):
         chosen.append(args[5])
         return entry(*args)
 
-    for lead in ((1,), (2,), (3,), (6,), (1, 2), (2, 3)):
+    for lead in ((1,), (2,), (3,), (6,), (1, 2), (2, 2), (2, 3)):
         q, qd, tau = (rng.normal(size=lead + (n,)) for _ in range(3))
         chosen.clear()
         with pytest.MonkeyPatch.context() as mp:
@@ -305,7 +308,7 @@ def test_a_few_states_run_state_by_state(small_tree):
             out = forward_dynamics(small_tree, q, qd, tau, smooth_friction=0.1)  # from Python
             jax.jit(lambda a, b, c: forward_dynamics(small_tree, a, b, c, smooth_friction=0.1))(q, qd, tau)
             jax.vmap(lambda a: forward_dynamics(small_tree, a, qd, tau, smooth_friction=0.1))(q[None])
-        assert chosen == [2 * int(np.prod(lead)) <= n, False, False], lead
+        assert chosen == [int(np.prod(lead)) <= n, False, False], lead
         assert out.shape == q.shape
         flat = [x.reshape(-1, n) for x in (q, qd, tau)]
         assert max_rel(out.reshape(-1, n), one(*flat)) <= SAME_RTOL
@@ -379,3 +382,35 @@ def test_deep_small_tree_single_state_takes_the_sweeps_and_matches_pinocchio():
         ours = np.asarray(fd(model, q, qd, tau))
         assert max_rel(ours, _pin_aba(oracle, q[None], qd[None], tau[None])[0]) <= PIN_RTOL
         assert max_rel(ours, composite(model, q, qd, tau)) <= PIN_RTOL
+
+
+def test_wide_batches_take_the_wide_entry(tiny_tree):
+    """From WIDE_BATCH states on (trees up to UNROLL_LINKS links) a batch goes to the wide entry: the same program
+    compiled with the batch options alone (XLA's fusion emitters kept). The choice by size (fails if the sizes are
+    swapped or the wide entry is never taken), its values against one state at a time, and its compiler options."""
+    from particlesim._xla import cpu_options
+    from particlesim.tree import aba as aba_module, dynamics
+
+    n = tiny_tree.n_joints
+    wide = aba_module.WIDE_BATCH
+    assert [aba_module.wide_batch(s, n) for s in (wide - 1, wide, 4096)] == [False, True, True]
+    assert not aba_module.wide_batch(4096, UNROLL_LINKS + 1)  # looped sweeps: chunks of at most 88 states
+    rng = np.random.default_rng(18)
+    q, qd, tau = (jnp.asarray(rng.normal(size=(wide, n))) for _ in range(3))
+    chosen = []
+    with pytest.MonkeyPatch.context() as mp:
+        for name in ("_batched", "_batched_wide"):
+            mp.setattr(dynamics, name, lambda *a, name=name: chosen.append(name) or jnp.zeros(a[1].shape))
+        forward_dynamics(tiny_tree, q[:-1], qd[:-1], tau[:-1])
+        forward_dynamics(tiny_tree, q, qd, tau)
+    assert chosen == ["_batched", "_batched_wide"]
+    out = forward_dynamics(tiny_tree, q, qd, tau, smooth_friction=0.1)
+    one = jax.jit(jax.vmap(lambda a, b, c: forward_dynamics(tiny_tree, a, b, c, smooth_friction=0.1)))
+    assert max_rel(out, one(q, qd, tau)) <= SAME_RTOL
+    assert dynamics._batched_wide.jit.top_options == cpu_options(batch="wide")
+    if jax.default_backend() == "cpu":
+        from particlesim._xla import BATCH_OPTIONS, COMPILE_OPTIONS
+
+        assert cpu_options(batch="wide") == BATCH_OPTIONS
+        assert cpu_options(batch=True) == {**COMPILE_OPTIONS, **BATCH_OPTIONS}
+
