@@ -37,8 +37,8 @@ from ..spatial import sincos
 from .model import PRISMATIC, REVOLUTE, TreeModel
 
 __all__ = ["UNROLL_LINKS", "ONE_STATE_SWEEPS_DEPTH", "BATCH_CHUNK", "BATCH_CHUNK_ABOVE", "batch_chunks",
-           "batch_lanes", "state_by_state", "WIDE_BATCH", "wide_batch", "LOOP_CHUNK_LINK_STATES", "LOOP_CHUNK_MAX", "supports_aba",
-           "one_state_sweeps", "aba", "aba_one_state"]
+           "batch_lanes", "state_by_state", "WIDE_BATCH", "wide_batch", "LOOP_CHUNK_LINK_STATES", "LOOP_CHUNK_MAX",
+           "supports_aba", "one_state_sweeps", "aba", "aba_one_state"]
 
 
 @functools.lru_cache(maxsize=64)
