@@ -47,8 +47,8 @@ def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = 
     is a few microseconds cheaper than sorting leaves into arrays and static values, which a mechanism's force-law
     callables need). Called at top level, every entry is compiled with :func:`particlesim._xla.cpu_options` (with
     the batch options for ``batch``, True or "wide", which needs ``arrays_only``; :class:`particlesim._xla.TopJit`);
-    inside a caller's trace it is inlined. The undecorated function stays available as ``.raw`` for callers already inside
-    a trace."""
+    inside a caller's trace it is inlined. The undecorated function stays available as ``.raw`` for callers already
+    inside a trace."""
     if batch and not arrays_only:
         raise TypeError(f"compiled({name!r}): batch=True needs arrays_only=True (the batch options are the tree "
                         "batch entry's)")
