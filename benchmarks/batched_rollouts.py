@@ -91,19 +91,31 @@ def _scene():
     return model, scale, q0, inertias, jnp.asarray(q0), jnp.zeros((BATCH, model.nq))
 
 
+def _steady(errors: dict):
+    """The loosest setting (keys loosest first) that meets :data:`TARGET` together with the next finer one, so that a
+    lucky dip of an error that is not monotone in the setting is not chosen (Dopri8's here: rtol 6.3e-5 gives 7.0e-6,
+    3.2e-5 gives 1.7e-5); else the finest setting tried."""
+    keys = list(errors)
+    for a, b in zip(keys, keys[1:]):
+        if errors[a] <= TARGET and errors[b] <= TARGET:
+            return a
+    return keys[-1]
+
+
 def _ours_error_by_rtol(model, inertias, jq0, jqd0, ref, solver) -> dict:
     """Largest final error over the checked members for each of ``solver``'s :data:`OURS_RTOLS` (atol = rtol /
-    100), from the loosest until one meets the target."""
+    100), from the loosest until two in a row meet the target (:func:`_steady`)."""
     # the same compiled entry as the timed chunked rows (sharded_vmap, chunks of CHUNK): the checked members' errors
     # here are those rows' own
     f = sharded_vmap(functools.partial(_ours, solver=solver), (param_axes(model, "inertia"), 0, 0, None, None),
                      chunk=CHUNK)
     args = (model.with_params(inertia=inertias[:CHECK]), jq0[:CHECK], jqd0[:CHECK])
-    errors = {}
+    errors, met = {}, 0
     for rtol in OURS_RTOLS[solver]:
         qf, _ = f(*args, jnp.asarray(rtol), jnp.asarray(rtol * 1e-2))
         errors[rtol] = float(np.max(np.abs(np.asarray(qf) - ref)))
-        if errors[rtol] <= TARGET:
+        met = met + 1 if errors[rtol] <= TARGET else 0
+        if met == 2:
             break
     print(f"ours {solver} error by rtol: {errors}", flush=True)
     return errors
@@ -181,8 +193,7 @@ def run() -> dict:
     ours_err, rows, chosen = {}, [], {}
     for solver in OURS_RTOLS:
         ours_err[solver] = _ours_error_by_rtol(model, inertias, jq0, jqd0, ref, solver)
-        ok = [r for r, e in ours_err[solver].items() if e <= TARGET]
-        chosen[solver] = max(ok) if ok else min(OURS_RTOLS[solver])
+        chosen[solver] = _steady(ours_err[solver])
         rows += _ours_rows(model, inertias, jq0, jqd0, ref, ((CHUNK, BATCH),), solver, chosen[solver])
     met = [k for k in chosen if ours_err[k][chosen[k]] <= TARGET] or list(chosen)  # a solver that misses the
     # target never runs the other rows (its rows are dropped from the headline), unless none meets it
@@ -233,8 +244,7 @@ def run() -> dict:
     for dt in RK4_DTS:
         ro = Rollout(member_models(range(CHECK), dt), states0(range(CHECK)), int(round(T_END / dt)))
         c_err[dt] = float(np.max(np.abs(final_q(ro(), CHECK) - ref)))
-    ok = [dt for dt in RK4_DTS if c_err[dt] <= TARGET]
-    dt = max(ok) if ok else min(RK4_DTS)
+    dt = _steady(c_err)  # the same rule as ours (RK4's error falls steadily with the step here)
     print(f"MuJoCo C RK4 error by dt: {c_err}; chosen dt {dt:g}", flush=True)
     n_steps = int(round(T_END / dt))
     setting = f"dt {dt:.4g} ({n_steps} steps)"
@@ -395,9 +405,10 @@ def markdown(results: dict) -> str:
     errs = ", ".join(f"dt {k}: {v:.1e}" for k, v in results["rk4_error_by_dt"].items())
     ours_errs = "; ".join(f"{solver}: " + ", ".join(f"rtol {k}: {v:.1e}" for k, v in e.items())
                           for solver, e in results.get("ours_error_by_rtol", {}).items())
-    sweep = ("" if not ours_errs else f" Ours (atol = rtol / 100), loosest first until one meets the target: "
-             f"{ours_errs} rad. Each side runs the batch at its coarsest setting meeting the target on the checked "
-             "members; our whole-batch and two-device rows use the solver faster in chunks on one core.")
+    sweep = ("" if not ours_errs else " Ours (atol = rtol / 100), loosest first until two in a row meet the target: "
+             f"{ours_errs} rad. Each side runs the batch at its coarsest setting that meets the target on the checked "
+             "members together with the next finer one (a dip of an error not monotone in the setting is not "
+             "chosen); our whole-batch and two-device rows use the solver faster in chunks on one core.")
     lines += ["", f"RK4 final error by step (MuJoCo C, same for MJX and the Pinocchio loop): {errs} rad.{sweep} "
               "Ours runs on "
               "one core (one CPU device), and on two as two host devices in a fresh process (`sharded_vmap` over "

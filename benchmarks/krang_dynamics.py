@@ -26,9 +26,7 @@ import numpy as np
 
 from particlesim import compiler_options
 from particlesim.data import data_dir
-from particlesim._xla import cpu_options
-from particlesim.tree import forward_dynamics
-from particlesim.tree.aba import aba as sweeps_of
+from particlesim.tree import dynamics as tree_dynamics, forward_dynamics
 from particlesim.io import load_urdf
 from particlesim.twins.urdf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
 from particlesim.simulate import simulate
@@ -39,8 +37,8 @@ NAME = "krang_dynamics"
 URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
 GRAVITY = (0.0, -9.81, 0.0)
 BATCH = 1024
-#: Small batches timed per call through the public function and through the sweeps alone, each with its compile time
-#: (Krang has 18 links: up to 18 states, one per link, run state by state).
+#: Small batches timed per call through the public function and through its batch entry made to take the sweeps,
+#: each with its compile time (Krang has 18 links: up to 18 states, one per link, run state by state).
 SMALL_BATCHES = (1, 8, 18, 32)
 INTERLEAVED_LAPS = 15
 DT = 1e-4
@@ -221,20 +219,23 @@ def run() -> dict:
     rows.append(_row(f"ours forward_dynamics (batch of {BATCH}, articulated-body sweeps)", t / BATCH, "per state",
                      c2b))
     # Small batches (particlesim.tree.aba.state_by_state: at most one state per link runs state by state): the public
-    # call per call, beside the written-out sweeps alone on the same states (compiled with the batch options), each
-    # with its compile time (the public call's: its first call, tracing included).
-    sweeps = jax.jit(lambda m, q, qd, tau: sweeps_of(m, q.T, qd.T, tau.T).T, compiler_options=cpu_options(batch=True))
+    # call per call, beside the same batch entry made to take the written-out sweeps (the same Python before dispatch
+    # but forward_dynamics' own checks), each with its compile time (its first call, tracing included), interleaved.
     err_small = 0.0
     for size in SMALL_BATCHES:
         args = (model, jq[:size], jqd[:size], jtau[:size])
         c_pub, a = timed(lambda: np.asarray(forward_dynamics(*args)))
-        c_sw, compiled_sweeps = timed(lambda: sweeps.lower(*args).compile())
-        b = np.asarray(compiled_sweeps(*args))
+        c_sw, b = timed(lambda: np.asarray(tree_dynamics._batched(*args, None, False)))
         err_small = max(err_small, float(np.max(np.abs(a - b)) / np.max(np.abs(b))))
-        t = median_time(lambda: jax.block_until_ready(forward_dynamics(*args)), number=50)
-        rows.append(_row(f"ours forward_dynamics (batch of {size}, public call)", t, "per call", c_pub))
-        t = median_time(lambda: jax.block_until_ready(compiled_sweeps(*args)), number=50)
-        rows.append(_row(f"ours articulated-body sweeps alone (batch of {size}, jit)", t, "per call", c_sw))
+        pub, swp = [], []
+        for _ in range(5):
+            pub.append(median_time(lambda: jax.block_until_ready(forward_dynamics(*args)), number=20))
+            swp.append(median_time(lambda: jax.block_until_ready(tree_dynamics._batched(*args, None, False)),
+                                   number=20))
+        rows.append(_row(f"ours forward_dynamics (batch of {size}, public call)", float(np.median(pub)), "per call",
+                         c_pub))
+        rows.append(_row(f"ours batch entry on the sweeps (batch of {size})", float(np.median(swp)), "per call",
+                         c_sw))
 
     # Order: everything single-threaded first (ours, Pinocchio and MuJoCo C on one thread, their interleaved
     # comparison, our rollouts), then the two-thread runs and MJX, whose thread pools and large programs left
@@ -518,7 +519,7 @@ def markdown(results: dict) -> str:
                           "(goal ≤ 1.5×).")
         lines.append("")
     small = [(k, by.get(f"ours forward_dynamics (batch of {k}, public call)"),
-              by.get(f"ours articulated-body sweeps alone (batch of {k}, jit)")) for k in SMALL_BATCHES]
+              by.get(f"ours batch entry on the sweeps (batch of {k})")) for k in SMALL_BATCHES]
     small = [x for x in small if None not in x]
     if small:
         comp = {r["name"]: r.get("compile_s") for r in results["rows"]}
@@ -527,10 +528,10 @@ def markdown(results: dict) -> str:
             c = comp.get(name)
             return "" if c is None else f" (compile {c:.1f} s)"
 
-        lines += ["Small batches, per call (this process, unpinned): "
+        lines += ["Small batches, per call (this process, unpinned, the two interleaved): "
                   + "; ".join(f"{k} states {a:.0f} µs through the public function"
                               f"{cs(f'ours forward_dynamics (batch of {k}, public call)')} against {b:.0f} µs for the "
-                              f"sweeps alone{cs(f'ours articulated-body sweeps alone (batch of {k}, jit)')}"
+                              f"batch entry on the sweeps{cs(f'ours batch entry on the sweeps (batch of {k})')}"
                               for k, a, b in small)
                   + f" (up to {results.get('n_links', 18)} states, one per link, run state by state; the "
                   "two agree to "

@@ -50,8 +50,8 @@ def compiled(name: str, *, static: Sequence[str] = (), check: Callable | None = 
     inside a caller's trace it is inlined. The undecorated function stays available as ``.raw`` for callers already
     inside a trace."""
     if batch and not arrays_only:
-        raise TypeError(f"compiled({name!r}): batch=True needs arrays_only=True (the batch options are the tree "
-                        "batch entry's)")
+        raise TypeError(f"compiled({name!r}): batch={batch!r} needs arrays_only=True (the batch options are the "
+                        "tree batch entry's)")
 
     def wrap(fn):
         sig = inspect.signature(fn)

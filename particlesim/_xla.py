@@ -16,16 +16,19 @@ except ImportError:  # a JAX without it: never claim top level, so entries compi
     def _trace_state_clean() -> bool:
         return False
 
-__all__ = ["COMPILE_OPTIONS", "BATCH_OPTIONS", "cpu_options", "compiler_options", "top_level", "TopJit"]
+__all__ = ["COMPILE_OPTIONS", "BATCH_OPTIONS", "WIDE_BATCH_OPTIONS", "cpu_options", "compiler_options", "top_level",
+           "TopJit"]
 
-#: XLA options for every compiled entry on the CPU (per executable: nothing global is changed). Elementwise and loop
+#: XLA options for every compiled entry on the CPU (per executable: nothing global is changed), wide tree batches
+#: excepted (:data:`WIDE_BATCH_OPTIONS`). Elementwise and loop
 #: code is emitted by XLA's direct LLVM emitters rather than its MLIR fusion emitters, which compile about twice as
 #: fast for programs like ours (hundreds of small fusions): Krang's 2 s rollout 3.2 -> 1.4 s, the quarter car's
 #: 4.3 -> 2.4 s, Krang's batched forward dynamics 1.9 -> 1.1 s, a 100-link chain 1.3 -> 0.6 s; run times equal within
 #: the machine's noise in interleaved runs (median ratios 0.92-1.04). Results agree to round-off (tested).
 COMPILE_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
-#: Added for batch entries: reductions go to the same YNNPACK kernels XLA already uses for dots and elementwise loops:
+#: Added for batch entries (and part of :data:`WIDE_BATCH_OPTIONS`): reductions go to the same YNNPACK kernels XLA
+#: already uses for dots and elementwise loops:
 #: the articulated-body sweeps of a batch, whose reductions run over the trailing batch axis, cost 5-20 % less per
 #: state in interleaved runs (Krang, 1024 states); one-state programs gain nothing, so only the batch entry uses them.
 BATCH_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type":
@@ -33,20 +36,24 @@ BATCH_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type":
 
 
 #: Wide batches (``batch="wide"``: the tree batch entry at :data:`particlesim.tree.aba.WIDE_BATCH` states or more)
-#: keep XLA's fusion emitters and take :data:`BATCH_OPTIONS` alone: YNNPACK runs most of the sweeps there and the
+#: take XLA's fusion emitters (set explicitly, so that an ``XLA_FLAGS`` turning them off process-wide does not change
+#: these programs) with :data:`BATCH_OPTIONS`: YNNPACK runs most of the sweeps there and the
 #: operations left to XLA run 3-5 % faster from its fusion emitters, with no slower compile (Krang on one core, per
 #: state, interleaved: 712 / 1024 / 1408 / 2048 / 4096 states 5.37 / 6.25 / 6.32 / 5.91 / 5.80 us against 5.61 / 6.68
 #: / 6.52 / 6.45 / 6.09 us with :data:`COMPILE_OPTIONS`; compile 4.2-5.6 against 5.2-5.9 s). Below about 700 states
 #: XLA compiles more of the sweeps itself, and its fusion emitters cost seconds more there (16 / 264 states: 15.4 /
 #: 10.3 s against 10.8 / 8.7 s), so narrower batches keep :data:`COMPILE_OPTIONS`.
-_GROUPS = {False: (COMPILE_OPTIONS,), True: (COMPILE_OPTIONS, BATCH_OPTIONS), "wide": (BATCH_OPTIONS,)}
+WIDE_BATCH_OPTIONS = {"xla_cpu_use_fusion_emitters": True, **BATCH_OPTIONS}
+_GROUPS = {False: (COMPILE_OPTIONS,), True: (COMPILE_OPTIONS, BATCH_OPTIONS), "wide": (WIDE_BATCH_OPTIONS,)}
 
 
 def cpu_options(batch: bool | str = False) -> dict:
     """The compiler options of our top-level programs: :data:`COMPILE_OPTIONS`, with :data:`BATCH_OPTIONS` for
-    ``batch`` (the batched tree forward dynamics), :data:`BATCH_OPTIONS` alone for ``batch="wide"`` (wide batches of
-    it), each group kept only when the default backend is the CPU and this XLA knows it (checked once by compiling a
-    trivial program with it), else ``{}``. A copy."""
+    ``batch=True`` (the batched tree forward dynamics), :data:`WIDE_BATCH_OPTIONS` for ``batch="wide"`` (wide
+    batches of it), each group kept only when the default backend is the CPU and this XLA knows it (checked once by
+    compiling a trivial program with it), else ``{}``. A copy."""
+    if batch not in _GROUPS:
+        raise ValueError(f"cpu_options: batch must be False, True or 'wide', got {batch!r}")
     return dict(_cpu_options(batch if batch == "wide" else bool(batch)))
 
 
@@ -67,10 +74,11 @@ def _cpu_options(batch: bool | str) -> dict:
 
 def compiler_options() -> dict:
     """XLA compiler options that particlesim's entries (``simulate``, ``simulate_mechanism``, the tree and mechanism
-    functions) are compiled with at top level; ``{}`` off the CPU (a batch of tree states adds
-    :data:`BATCH_OPTIONS`). For a user's own top-level ``jax.jit``:
-    ``jax.jit(loss, compiler_options=particlesim.compiler_options())`` compiles about twice as fast on the CPU with
-    the same run time (:data:`COMPILE_OPTIONS`). A copy: changing it changes nothing here."""
+    functions) are compiled with at top level; ``{}`` off the CPU (a batch of tree states adds :data:`BATCH_OPTIONS`;
+    one of :data:`~particlesim.tree.aba.WIDE_BATCH` states or more takes :data:`WIDE_BATCH_OPTIONS` instead). For a
+    user's own top-level ``jax.jit``: ``jax.jit(loss, compiler_options=particlesim.compiler_options())`` compiles about
+    twice as fast on the CPU with the same run time (:data:`COMPILE_OPTIONS`). A copy: changing it changes nothing
+    here."""
     return cpu_options()
 
 

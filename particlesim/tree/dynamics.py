@@ -31,6 +31,7 @@ from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
 from .._jit import _as_array, compiled
+from .._xla import top_level
 from .._ode import _ArrayImpl
 from .._linalg import spd_solve_applied
 from ..errors import ModelError
@@ -314,12 +315,13 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     _parameters_finite(model)
     if _has_quaternions(model.kinds):  # (a method looked up on an equinox module costs ~50 us: only when needed)
         model.check_quaternions_nonzero(q)
-    # A few states passed from Python (concrete arrays) run state by state; inside a caller's trace the sweeps stay,
-    # since an outer jax.vmap would turn the loop into a loop of vmapped one-state programs (64 parameter sets of 8
-    # Krang states: 11.4 ms against 6.5 ms for the sweeps, one core).
+    # A few states passed from Python (concrete arrays, no trace active) run state by state; inside a caller's trace
+    # the sweeps stay, since an outer jax.vmap (over the states or only over parameters, the states captured) would
+    # turn the loop into a loop of vmapped one-state programs (64 parameter sets of 8 Krang states: 11.4 ms against
+    # 6.5 ms for the sweeps, one core).
     size = math.prod(q.shape[:-1])
     by_state = (type(q) is _ArrayImpl and type(qd) is _ArrayImpl and type(tau) is _ArrayImpl
-                and state_by_state(size, model.n_joints))
+                and state_by_state(size, model.n_joints) and top_level())
     wide = wide_batch(size, model.n_joints) and supports_aba(model)
     entry = _batched_wide if wide else _batched  # the same program; other XLA options for wide batches
     return entry(model, q, qd, tau, smooth_friction, by_state)

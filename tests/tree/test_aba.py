@@ -84,12 +84,13 @@ def test_a_few_states_against_pinocchio(case):
     if not state_by_state(1, n):
         pytest.skip("trees beyond UNROLL_LINKS keep their looped sweeps for any batch")
     rng = np.random.default_rng(17)
-    q, qd, tau = rng.uniform(-2.0, 2.0, (1, 3, n)), rng.normal(size=n), rng.normal(size=(3, n))
-    assert state_by_state(3, n)  # the (1, 3) batch below
+    k = n  # the most states the loop takes: one per link
+    q, qd, tau = rng.uniform(-2.0, 2.0, (1, k, n)), rng.normal(size=n), rng.normal(size=(k, n))
+    assert state_by_state(k, n) and not state_by_state(k + 1, n)  # the (1, k) batch below
     ours = np.asarray(forward_dynamics(model, q, qd, tau))
-    assert ours.shape == (1, 3, n)
-    full = [np.broadcast_to(x, (1, 3, n)).reshape(3, n) for x in (q, qd, tau)]
-    assert max_rel(ours.reshape(3, n), _pin_aba(oracle, *full)) <= PIN_RTOL
+    assert ours.shape == (1, k, n)
+    full = [np.broadcast_to(x, (1, k, n)).reshape(k, n) for x in (q, qd, tau)]
+    assert max_rel(ours.reshape(k, n), _pin_aba(oracle, *full)) <= PIN_RTOL
 
 
 def test_large_tree_batches_run_in_chunks_against_pinocchio(case):
@@ -286,7 +287,9 @@ def test_a_few_states_run_state_by_state(small_tree):
     """A batch of at most one state per link passed from Python (here 5 links: 1, 2, 3 and 4 states, leading axes
     kept) loops over the one-state program instead of running the written-out sweeps, whose hundreds of small kernels
     a few states do not repay; 6 states, and any batch inside a caller's trace (here ``jit`` and ``vmap``), take the
-    sweeps. The loop runs no sweeps (a spy), and both paths equal state-by-state calls, friction included."""
+    sweeps, also when only the model is traced and the states are captured as concrete arrays (a ``vmap`` over
+    parameter sets, ``jit``, ``grad``). The loop runs no sweeps (a spy), and both paths equal state-by-state calls,
+    friction included."""
     from particlesim.tree import aba as aba_module, dynamics
 
     n = small_tree.n_joints
@@ -300,7 +303,7 @@ def test_a_few_states_run_state_by_state(small_tree):
         chosen.append(args[5])
         return entry(*args)
 
-    for lead in ((1,), (2,), (3,), (6,), (1, 2), (2, 2), (2, 3)):
+    for lead in ((1,), (2,), (3,), (5,), (6,), (1, 2), (2, 2), (2, 3)):
         q, qd, tau = (rng.normal(size=lead + (n,)) for _ in range(3))
         chosen.clear()
         with pytest.MonkeyPatch.context() as mp:
@@ -308,7 +311,11 @@ def test_a_few_states_run_state_by_state(small_tree):
             out = forward_dynamics(small_tree, q, qd, tau, smooth_friction=0.1)  # from Python
             jax.jit(lambda a, b, c: forward_dynamics(small_tree, a, b, c, smooth_friction=0.1))(q, qd, tau)
             jax.vmap(lambda a: forward_dynamics(small_tree, a, qd, tau, smooth_friction=0.1))(q[None])
-        assert chosen == [int(np.prod(lead)) <= n, False, False], lead
+            states = tuple(jnp.asarray(x) for x in (q, qd, tau))  # concrete, captured; only the model traced
+            scaled = lambda s: small_tree.with_params(inertia=small_tree.inertia * s)  # noqa: E731
+            on_model = lambda s: forward_dynamics(scaled(s), *states, smooth_friction=0.1)  # noqa: E731
+            jax.jit(on_model)(1.0), jax.vmap(on_model)(jnp.ones(2)), jax.grad(lambda s: jnp.sum(on_model(s)))(1.0)
+        assert chosen == [int(np.prod(lead)) <= n] + [False] * 5, lead
         assert out.shape == q.shape
         flat = [x.reshape(-1, n) for x in (q, qd, tau)]
         assert max_rel(out.reshape(-1, n), one(*flat)) <= SAME_RTOL
@@ -408,9 +415,31 @@ def test_wide_batches_take_the_wide_entry(tiny_tree):
     one = jax.jit(jax.vmap(lambda a, b, c: forward_dynamics(tiny_tree, a, b, c, smooth_friction=0.1)))
     assert max_rel(out, one(q, qd, tau)) <= SAME_RTOL
     assert dynamics._batched_wide.jit.top_options == cpu_options(batch="wide")
-    if jax.default_backend() == "cpu":
+    if jax.default_backend() == "cpu":  # set per program: the suite's XLA_FLAGS turn the fusion emitters off
         from particlesim._xla import BATCH_OPTIONS, COMPILE_OPTIONS
 
-        assert cpu_options(batch="wide") == BATCH_OPTIONS
+        assert cpu_options(batch="wide") == {"xla_cpu_use_fusion_emitters": True, **BATCH_OPTIONS}
         assert cpu_options(batch=True) == {**COMPILE_OPTIONS, **BATCH_OPTIONS}
+    with pytest.raises(ValueError, match="batch must be"):
+        cpu_options(batch="Wide")
+
+
+def test_wide_batches_of_models_outside_the_sweeps_stay_on_the_batch_entry():
+    """A floating-base model (no sweeps) evaluates even a wide batch state by state through the batch entry."""
+    from particlesim.tree import aba as aba_module, dynamics
+
+    urdf = random_tree_urdf(4, 2).replace('<link name="base"/>', '<link name="base"><inertial><mass value="2"/>'
+                                          '<inertia ixx="0.1" ixy="0" ixz="0" iyy="0.2" iyz="0" izz="0.15"/>'
+                                          '</inertial></link>')
+    model = load_urdf(urdf, floating_base=True, limits="ignore")
+    assert not supports_aba(model) and aba_module.wide_batch(aba_module.WIDE_BATCH, model.n_joints)
+    q = jnp.tile(jnp.concatenate([jnp.zeros(3), jnp.array([0.0, 0.0, 0.0, 1.0]), jnp.zeros(model.nq - 7)]),
+                 (aba_module.WIDE_BATCH, 1))
+    v = jnp.zeros((aba_module.WIDE_BATCH, model.nv))
+    chosen = []
+    with pytest.MonkeyPatch.context() as mp:
+        for name in ("_batched", "_batched_wide"):
+            mp.setattr(dynamics, name, lambda *a, name=name: chosen.append(name) or jnp.zeros(a[2].shape))
+        forward_dynamics(model, q, v, v)
+    assert chosen == ["_batched"]
 
