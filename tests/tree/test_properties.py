@@ -148,3 +148,29 @@ def test_link_poses_equal_the_link_by_link_products():
         ref = jax.vmap(lambda q, v: jax.jvp(plain, (q,), (v,)))(qs, vs)
         for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(ref)):
             assert max_rel(np.asarray(a), np.asarray(b)) <= EXACT_RTOL
+
+
+def test_changing_a_link_mass_by_its_centre_of_mass_parameters(small_tree):
+    """docs/trees.md's recipe: a link's mass changed through ``com_params``/``origin_params`` keeps its centre of
+    mass and its inertia about it, so the potential energy changes by exactly ``-dm g . x_com`` (the link's centre of
+    mass placed by ``link_poses``), and the recipe differentiates."""
+    from particlesim.inertia import com_params, origin_params
+
+    model = small_tree
+    k = model.link_index(model.link_names[-1])
+    m, c, i_com = com_params(model.inertia[k])
+
+    def heavier(scale):
+        return model.with_params(inertia=model.inertia.at[k].set(origin_params(scale * m, c, i_com)))
+
+    m2, c2, i2 = com_params(heavier(1.5).inertia[k])
+    assert abs(float(m2 / m) - 1.5) <= EXACT_RTOL
+    assert max_rel(c2, c) <= EXACT_RTOL and max_rel(i2, i_com) <= EXACT_RTOL
+    for seed in SEEDS:
+        q = _state(model, seed)[0]
+        rot, pos = link_poses(model, q)
+        x_com = rot[k] @ c + pos[k]
+        du = potential_energy(heavier(1.5), q) - potential_energy(model, q)
+        expected = -0.5 * m * jnp.dot(model.gravity, x_com)
+        assert abs(float(du - expected)) <= EXACT_RTOL * float(abs(expected))
+    check_grads(lambda s: potential_energy(heavier(s), q), (1.5,), order=1, modes=("fwd", "rev"))
