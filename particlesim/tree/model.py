@@ -45,7 +45,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ..errors import InertiaError, ModelError
-from ..inertia import check_inertia, com_params, unpack_params
+from ..inertia import check_inertia, com_params, origin_params, unpack_params
 from ..spatial import quaternion_to_matrix
 
 __all__ = ["TreeModel", "REVOLUTE", "PRISMATIC", "FREE", "BALL", "JOINT_KINDS"]
@@ -488,16 +488,48 @@ class TreeModel(eqx.Module):
                 return f[1], np.asarray(f[2]).reshape(3, 3), np.asarray(f[3])
         return None
 
-    def with_params(self, **changes) -> "TreeModel":
-        """A copy with some array leaves replaced (``inertia=``, ``origin_xyz=``, ``gravity=``, ...), unchecked."""
+    def with_params(self, link: dict | None = None, **changes) -> "TreeModel":
+        """A copy with some array leaves replaced (``inertia=``, ``origin_xyz=``, ``gravity=``, ...), and links'
+        inertial parameters replaced by name: ``link={"lGripper": {"mass": 1.2, "com": (0.0, 0.0, 0.05), "inertia":
+        i_com}}`` (in the link's frame; ``inertia`` the 3 x 3 tensor about the centre of mass). Each field is replaced
+        alone: a new ``mass`` keeps the link's centre of mass and its inertia about it (so a link that scales with
+        its mass needs ``inertia`` too). Values may be traced (one compiled program serves all) and are not checked
+        here; every entry refuses non-finite ones. Unknown leaves, links or fields raise :class:`ModelError`."""
         leaves = ("inertia", "origin_xyz", "gravity", "viscous", "coulomb", "rotor_inertia", "stiffness", "spring_ref",
                   "limits")
         for k in changes:
             if k not in leaves:
                 raise ModelError(f"with_params: {k!r} is not a parameter leaf (one of {leaves})")
+        if link:
+            changes["inertia"] = self._link_inertia(link, changes.get("inertia", self.inertia))
         names = list(changes)
         return eqx.tree_at(lambda m: [getattr(m, k) for k in names], self,
                            [jnp.asarray(changes[k], dtype=float) for k in names], is_leaf=lambda x: x is None)
+
+    def _link_inertia(self, link: dict, inertia) -> Array:
+        """``inertia`` (n, 10) with the rows of the links named in ``link`` rebuilt from their (partly replaced)
+        mass, centre of mass and inertia about it (:meth:`with_params`)."""
+        inertia = jnp.asarray(inertia, dtype=float)
+        fields = ("mass", "com", "inertia")
+        for name, given in link.items():
+            k = self.link_index(name)
+            if not isinstance(given, dict) or set(given) - set(fields):
+                raise ModelError(f"with_params: link {name!r} takes a dict of {list(fields)}, got {given!r}")
+            if set(given) == set(fields):
+                m, c, i_com = (given[f] for f in fields)
+            else:
+                row = inertia[k]
+                if _concrete(row) and float(row[0]) == 0.0:
+                    raise ModelError(f"with_params: link {name!r} has no mass, so no centre of mass to keep: give "
+                                     "its mass, com and inertia together")
+                m, c, i_com = com_params(row)
+                m, c, i_com = given.get("mass", m), given.get("com", c), given.get("inertia", i_com)
+            m, c, i_com = (jnp.asarray(x, dtype=float) for x in (m, c, i_com))
+            if m.shape != () or c.shape != (3,) or i_com.shape != (3, 3):
+                raise ModelError(f"with_params: link {name!r}: mass must be a scalar, com (3,) and inertia (3, 3), "
+                                 f"got {m.shape}, {c.shape} and {i_com.shape}")
+            inertia = inertia.at[k].set(origin_params(m, c, i_com))
+        return inertia
 
 
 def _limits(limits, coords, kinds, mimic) -> Array:

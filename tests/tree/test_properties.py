@@ -174,3 +174,38 @@ def test_changing_a_link_mass_by_its_centre_of_mass_parameters(small_tree):
         expected = -0.5 * m * jnp.dot(model.gravity, x_com)
         assert abs(float(du - expected)) <= EXACT_RTOL * float(abs(expected))
     check_grads(lambda s: potential_energy(heavier(s), q), (1.5,), order=1, modes=("fwd", "rev"))
+
+
+def test_link_parameters_by_name(small_tree):
+    """``with_params(link={name: {...}})`` equals the com_params / origin_params recipe field by field (a new mass keeps
+    the centre of mass and the inertia about it), traces (one compiled program for new values, gradient against a
+    central difference) and refuses unknown links, fields and shapes, and a partial change of a massless link."""
+    from particlesim.errors import ModelError
+    from particlesim.inertia import com_params, origin_params
+
+    model = small_tree
+    name = model.link_names[-1]
+    k = model.link_index(name)
+    m, c, i_com = com_params(model.inertia[k])
+    new_c, new_i = c + jnp.array([0.01, -0.02, 0.03]), 1.1 * i_com
+    for given, expected in (({"mass": 2.0 * m}, (2.0 * m, c, i_com)), ({"com": new_c}, (m, new_c, i_com)),
+                            ({"inertia": new_i, "mass": 0.5 * m}, (0.5 * m, c, new_i))):
+        row = model.with_params(link={name: given}).inertia[k]
+        assert max_rel(row, origin_params(*expected)) <= EXACT_RTOL, given
+        assert max_rel(np.delete(np.asarray(model.with_params(link={name: given}).inertia), k, 0),
+                       np.delete(np.asarray(model.inertia), k, 0)) == 0.0  # other links untouched
+    q = _state(model, 0)[0]
+    energy = jax.jit(lambda mass: potential_energy(model.with_params(link={name: {"mass": mass}}), q))
+    h = 1e-6
+    fd = (energy(m + h) - energy(m - h)) / (2 * h)
+    assert abs(float(jax.grad(energy)(m)) - float(fd)) <= 1e-7 * abs(float(fd))
+    assert energy._cache_size() == 1  # new values reuse the compiled program
+    for bad, match in (({"nowhere": {"mass": 1.0}}, "unknown link"), ({name: {"masss": 1.0}}, "takes a dict"),
+                       ({name: {"com": (0.0, 1.0)}}, r"com \(3,\)")):
+        with pytest.raises(ModelError, match=match):
+            model.with_params(link=bad)
+    massless = model.with_params(inertia=model.inertia.at[k].set(0.0))
+    with pytest.raises(ModelError, match="has no mass"):
+        massless.with_params(link={name: {"mass": 1.0}})
+    whole = massless.with_params(link={name: {"mass": m, "com": c, "inertia": i_com}})
+    assert max_rel(whole.inertia[k], model.inertia[k]) <= EXACT_RTOL
