@@ -493,8 +493,10 @@ class TreeModel(eqx.Module):
         inertial parameters replaced by name: ``link={"lGripper": {"mass": 1.2, "com": (0.0, 0.0, 0.05), "inertia":
         i_com}}`` (in the link's frame; ``inertia`` the 3 x 3 tensor about the centre of mass). Each field is replaced
         alone: a new ``mass`` keeps the link's centre of mass and its inertia about it (so a link that scales with
-        its mass needs ``inertia`` too). Values may be traced (one compiled program serves all) and are not checked
-        here; every entry refuses non-finite ones. Unknown leaves, links or fields raise :class:`ModelError`."""
+        its mass needs ``inertia`` too). Values may be traced (one compiled program serves all); concrete link values
+        are checked as a loaded model's are (:func:`~particlesim.inertia.check_inertia`: positive mass, a symmetric
+        positive semi-definite tensor within the triangle inequalities), array leaves are not (every entry refuses
+        non-finite ones). Unknown leaves, links or fields raise :class:`ModelError`."""
         leaves = ("inertia", "origin_xyz", "gravity", "viscous", "coulomb", "rotor_inertia", "stiffness", "spring_ref",
                   "limits")
         for k in changes:
@@ -524,8 +526,9 @@ class TreeModel(eqx.Module):
                                      "its mass, com and inertia together")
                 m, c, i_com = com_params(row)
                 m, c, i_com = given.get("mass", m), given.get("com", c), given.get("inertia", i_com)
+            check_inertia(m, c, i_com, f"with_params: link {name!r}", degenerate_ok=True)  # concrete values only
             m, c, i_com = (jnp.asarray(x, dtype=float) for x in (m, c, i_com))
-            if m.shape != () or c.shape != (3,) or i_com.shape != (3, 3):
+            if m.shape != () or c.shape != (3,) or i_com.shape != (3, 3):  # traced values (checked above otherwise)
                 raise ModelError(f"with_params: link {name!r}: mass must be a scalar, com (3,) and inertia (3, 3), "
                                  f"got {m.shape}, {c.shape} and {i_com.shape}")
             inertia = inertia.at[k].set(origin_params(m, c, i_com))

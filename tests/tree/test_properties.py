@@ -179,7 +179,8 @@ def test_changing_a_link_mass_by_its_centre_of_mass_parameters(small_tree):
 def test_link_parameters_by_name(small_tree):
     """``with_params(link={name: {...}})`` equals the com_params / origin_params recipe field by field (a new mass keeps
     the centre of mass and the inertia about it), traces (one compiled program for new values, gradient against a
-    central difference) and refuses unknown links, fields and shapes, and a partial change of a massless link."""
+    central difference) and refuses unknown links, fields and shapes (traced ones too), a negative, NaN or
+    non-physical mass distribution (by ``check_inertia``, naming the link), and a partial change of a massless link."""
     from particlesim.errors import ModelError
     from particlesim.inertia import com_params, origin_params
 
@@ -201,9 +202,14 @@ def test_link_parameters_by_name(small_tree):
     assert abs(float(jax.grad(energy)(m)) - float(fd)) <= 1e-7 * abs(float(fd))
     assert energy._cache_size() == 1  # new values reuse the compiled program
     for bad, match in (({"nowhere": {"mass": 1.0}}, "unknown link"), ({name: {"masss": 1.0}}, "takes a dict"),
-                       ({name: {"com": (0.0, 1.0)}}, r"com \(3,\)")):
+                       ({name: {"com": (0.0, 1.0)}}, r"centre of mass must have shape \(3,\)"),
+                       ({name: {"mass": -1.0}}, "mass must be positive"),
+                       ({name: {"inertia": np.diag([1.0, 1.0, 3.0])}}, "triangle inequality"),
+                       ({name: {"mass": float("nan")}}, "NaN or inf")):
         with pytest.raises(ModelError, match=match):
             model.with_params(link=bad)
+    with pytest.raises(ModelError, match=r"com \(3,\)"):  # traced values: shapes still refused
+        jax.jit(lambda x: model.with_params(link={name: {"com": x}}).inertia)(jnp.zeros(2))
     massless = model.with_params(inertia=model.inertia.at[k].set(0.0))
     with pytest.raises(ModelError, match="has no mass"):
         massless.with_params(link={name: {"mass": 1.0}})
