@@ -195,6 +195,7 @@ def _interpolated(rows: list[dict], ok: dict, target: float, key: str) -> dict:
         if le1 > le0 and ok[key] > 0:
             w = (np.log(target) - le0) / (le1 - le0)
             out["interp_wall_s"] = float(np.exp((1 - w) * np.log(ok["wall_s"]) + w * np.log(c["wall_s"])))
+            out["interp_dt"], out["interp_weight"] = c.get("dt"), float(w)  # for check_interleaved
     return out
 
 
@@ -218,6 +219,53 @@ def headline(rows: list[dict], target: float, key: str = "error") -> dict:
         p = min(cand, key=lambda r: r.get("interp_wall_s", r["wall_s"])) if cand else None
         ratios[peer] = (p.get("interp_wall_s", p["wall_s"]) / best["wall_s"]) if (p and best) else None
     return {"headline": head, "ours_best": best, "speedup_vs": ratios}
+
+
+#: :func:`check_interleaved`: laps, and runs per side per lap (its least is the lap's time, as in the sweeps).
+CHECK_LAPS = 15
+CHECK_PER_LAP = 3
+
+
+def check_interleaved(res: dict, ours_run: Callable[[str, float], object], peer_make: Callable[[float, dict], Callable],
+                      *, peer: str = "MuJoCo C", laps: int = CHECK_LAPS, per_lap: int = CHECK_PER_LAP,
+                      log: Callable = print) -> dict | None:
+    """The headline ratio to ``peer`` timed again with the two sides interleaved. The sweeps time every setting of
+    one method before the next method's, minutes apart on a shared machine whose speed drifts by tens of percent
+    (a quarter car's rows all ran 30 % faster in one run than in the one before, MuJoCo's fine steps 25 %), so the
+    headline ratio carries that drift. Here each lap runs ours at its headline setting, then the peer at its
+    headline step and at the cheaper step its time is interpolated from (the headline's log-log weight), each the
+    least of ``per_lap`` runs; the lap ratios' median is the ratio at equal machine state. ``ours_run(solver,
+    rtol)`` runs ours saving the end state (blocking); ``peer_make(dt, row)`` returns a callable running the peer
+    (its headline ``row``) at step ``dt``. Records ``res["interleaved"]`` (times are medians over laps; ratio > 1: ours faster) and returns it."""
+    best = res["ours_best"]
+    cands = [r for m, r in res["headline"].items() if m.startswith(peer) and r]
+    if best is None or not cands or not best["method"].startswith("ours ") or "dt" not in cands[0]:
+        return None
+    p = min(cands, key=lambda r: r.get("interp_wall_s", r["wall_s"]))
+    solver, rtol = best["method"][len("ours "):], float(best["setting"].split()[1])
+    dts = [p["dt"]] + ([p["interp_dt"]] if p.get("interp_dt") is not None else [])
+    w = p.get("interp_weight", 0.0)
+    runs = [lambda: ours_run(solver, rtol)] + [peer_make(dt, p) for dt in dts]
+    for fn in runs:  # warm: the programs are compiled and the models built already
+        fn()
+
+    def least(fn):
+        ts = []
+        for _ in range(per_lap):
+            t = time.perf_counter()
+            fn()
+            ts.append(time.perf_counter() - t)
+        return min(ts)
+
+    a = np.asarray([[least(fn) for fn in runs] for _ in range(laps)])
+    peer_t = a[:, 1] if len(dts) == 1 else np.exp((1 - w) * np.log(a[:, 1]) + w * np.log(a[:, 2]))
+    ratio = peer_t / a[:, 0]
+    out = {"peer": p["method"], "ours": f"{best['method']}, {best['setting']}", "peer_dts": dts, "weight": w,
+           "laps": laps, "per_lap": per_lap, "ours_s": float(np.median(a[:, 0])), "peer_s": float(np.median(peer_t)),
+           "ratio": float(np.median(ratio)), "ratio_quartiles": [float(x) for x in np.percentile(ratio, [25, 75])]}
+    res["interleaved"] = out
+    log(out)
+    return out
 
 
 def finish(name: str, scene: str, t_end: float, target: float, unit: str, what: str, reference: dict,
@@ -317,6 +365,16 @@ def markdown(results: dict, *, all_rows: bool = False) -> str:
         over = " (largest over the run)" if results.get("error_key") == "max_error" else ""
         lines += [f"**At {results['target_error']:g} {unit}{over}: ours ({best['method']}, {best['setting']}) "
                   f"{fmt_time(best['wall_s'])}; " + "; ".join(parts) + ".**", ""]
+        chk = results.get("interleaved")
+        if chk:
+            x = chk["ratio"]
+            q = chk["ratio_quartiles"]
+            rel = f"{x:.2f}× faster" if x >= 1 else f"{1 / x:.2f}× slower"
+            lines += [f"Interleaved check of that ratio ({chk['laps']} laps, each side the least of {chk['per_lap']} "
+                      f"runs per lap; `_wp.check_interleaved`): ours {fmt_time(chk['ours_s'])}, {chk['peer']} "
+                      f"{fmt_time(chk['peer_s'])} at the target (steps {', '.join(f'{d:g}' for d in chk['peer_dts'])} "
+                      f"s): ours **{rel}** (median of lap ratios; quartiles {q[0]:.2f}–{q[1]:.2f}, > 1: ours "
+                      "faster).", ""]
     over = " over the whole run" if results.get("error_key") == "max_error" else ""
     lines += [f"Cheapest run reaching {results['target_error']:g} {unit}{over}:", "",
               "| method | setting | wall time | final error | max error | steps | compile |",

@@ -125,6 +125,8 @@ def run_chain(joint: str, n: int) -> dict:
                       {"what": f"ours Dopri8 rtol {REF['rtol']:g} atol {REF['rtol'] * 1e-2:g}", "steps": int(ref_steps)},
                       rows, started, notes=notes)
     res["notes"] += _wp.headline_notes(res)
+    mujoco_at = _mujoco_rollout(geom, sites)
+    _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False), lambda dt, _: mujoco_at(dt)[0])
     return res
 
 

@@ -74,6 +74,13 @@ def _tyre(m):
     return [(site, (0.0, 1.0, 0.0), 0.0, nk.TYRE["radius"], nk.TYRE["stiffness"], nk.TYRE["damping"])]
 
 
+def _c_rollout(dt: float, kind: str) -> Rollout:
+    """The MuJoCo C twin's native loop at step ``dt`` with integrator ``kind``, the tyre's callback installed."""
+    m = mujoco.MjModel.from_xml_string(twin_xml(dt, kind))
+    mjcb.install_tyres(_tyre(m))
+    return Rollout(m, initial_state(m), int(round(T_END / dt)))
+
+
 def _c_rows(errors) -> list[dict]:
     """MuJoCo C through ``mujoco.rollout`` on the calling thread, the tyre as a compiled ``mjcb_passive``."""
     from particlesim.twins.nikravesh import _loop_residual
@@ -84,9 +91,8 @@ def _c_rows(errors) -> list[dict]:
         loops = {}
 
         def make(dt, kind=kind, loops=loops):
-            m = mujoco.MjModel.from_xml_string(twin_xml(dt, kind))
-            mjcb.install_tyres(_tyre(m))
-            ro = Rollout(m, initial_state(m), int(round(T_END / dt)))
+            ro = _c_rollout(dt, kind)
+            m = ro.models
             site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "G2")
             b1, b2 = int(m.eq_obj1id[0]), int(m.eq_obj2id[0])
             stride = int(round(save_dt / dt))
@@ -192,6 +198,10 @@ def run() -> dict:
     res["notes"] += ["On the largest error over the run: " + n[0].lower() + n[1:]
                      for n in _wp.headline_notes({**res, **res["trajectory_headline"]})]
     res["callback_cost"] = cost
+    # the twin's method label is "MuJoCo C twin <integrator> (mujoco.rollout)"
+    _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False),
+                          lambda dt, row: _c_rollout(dt, row["method"].split()[3]), log=lambda r: print(r, flush=True))
+    mjcb.uninstall()
     res["elapsed_s"] = time.perf_counter() - started
     return res
 
