@@ -221,27 +221,33 @@ def headline(rows: list[dict], target: float, key: str = "error") -> dict:
     return {"headline": head, "ours_best": best, "speedup_vs": ratios}
 
 
-#: :func:`check_interleaved`: laps, and runs per side per lap (its least is the lap's time, as in the sweeps).
+#: :func:`check_interleaved`: laps, and runs per side per lap.
 CHECK_LAPS = 15
 CHECK_PER_LAP = 3
 
 
-def check_interleaved(res: dict, ours_run: Callable[[str, float], object], peer_make: Callable[[float, dict], Callable],
-                      *, peer: str = "MuJoCo C", laps: int = CHECK_LAPS, per_lap: int = CHECK_PER_LAP,
-                      log: Callable = print) -> dict | None:
-    """The headline ratio to ``peer`` timed again with the two sides interleaved. The sweeps time every setting of
-    one method before the next method's, minutes apart on a shared machine whose speed drifts by tens of percent
-    (a quarter car's rows all ran 30 % faster in one run than in the one before, MuJoCo's fine steps 25 %), so the
-    headline ratio carries that drift. Here each lap runs ours at its headline setting, then the peer at its
-    headline step and at the cheaper step its time is interpolated from (the headline's log-log weight), each the
-    least of ``per_lap`` runs; the lap ratios' median is the ratio at equal machine state. ``ours_run(solver,
-    rtol)`` runs ours saving the end state (blocking); ``peer_make(dt, row)`` returns a callable running the peer
-    (its headline ``row``) at step ``dt``. Records ``res["interleaved"]`` (times are medians over laps; ratio > 1: ours faster) and returns it."""
+def check_interleaved(res: dict, ours_run: Callable[[str, float], object],
+                      peer_make: Callable[[float, dict], Callable], *, peer: str = "MuJoCo C",
+                      laps: int = CHECK_LAPS, per_lap: int = CHECK_PER_LAP, log: Callable = print) -> dict | None:
+    """The headline ratio to ``peer`` timed again with the two sides interleaved, by two estimators.
+
+    The sweeps time every setting of one method before the next method's, minutes apart on a shared machine whose
+    speed moves by tens of percent, and take each row's least of up to :data:`MAX_REPEAT` runs, which favours the
+    side whose run times spread more (ours: Python, dispatch and XLA's threads around a short program; MuJoCo C's
+    loop varies less). Here each lap runs ours at its headline setting, then the peer at its headline step and at
+    the cheaper step its time is interpolated from (the headline's log-log weight), each side ``per_lap`` times.
+    Recorded in ``res["interleaved"]`` (> 1: ours faster): ``ratio``, the median over laps of the ratio of the
+    lap's least times (a typical call; quartiles beside it), and ``ratio_least``, the ratio of each side's least
+    over all laps (the sweeps' estimator, at equal machine state). ``ours_run(solver, rtol)`` runs ours saving the
+    end state (blocking); ``peer_make(dt, row)`` returns a callable running the peer (its headline ``row``) at step
+    ``dt``."""
     best = res["ours_best"]
     cands = [r for m, r in res["headline"].items() if m.startswith(peer) and r]
-    if best is None or not cands or not best["method"].startswith("ours ") or "dt" not in cands[0]:
+    if best is None or not cands or not best["method"].startswith("ours "):
         return None
     p = min(cands, key=lambda r: r.get("interp_wall_s", r["wall_s"]))
+    if "dt" not in p:
+        return None
     solver, rtol = best["method"][len("ours "):], float(best["setting"].split()[1])
     dts = [p["dt"]] + ([p["interp_dt"]] if p.get("interp_dt") is not None else [])
     w = p.get("interp_weight", 0.0)
@@ -249,20 +255,28 @@ def check_interleaved(res: dict, ours_run: Callable[[str, float], object], peer_
     for fn in runs:  # warm: the programs are compiled and the models built already
         fn()
 
-    def least(fn):
+    def lap(fn):
         ts = []
         for _ in range(per_lap):
             t = time.perf_counter()
             fn()
             ts.append(time.perf_counter() - t)
-        return min(ts)
+        return ts
 
-    a = np.asarray([[least(fn) for fn in runs] for _ in range(laps)])
-    peer_t = a[:, 1] if len(dts) == 1 else np.exp((1 - w) * np.log(a[:, 1]) + w * np.log(a[:, 2]))
-    ratio = peer_t / a[:, 0]
+    a = np.asarray([[lap(fn) for fn in runs] for _ in range(laps)])  # (laps, 1 + len(dts), per_lap)
+
+    def peer_time(t):  # the peer's time at the target from its columns, as _interpolated does
+        return t[..., 1] if len(dts) == 1 else np.exp((1 - w) * np.log(t[..., 1]) + w * np.log(t[..., 2]))
+
+    lap_least = a.min(axis=2)
+    ratio = peer_time(lap_least) / lap_least[:, 0]
+    least = a.min(axis=(0, 2))
     out = {"peer": p["method"], "ours": f"{best['method']}, {best['setting']}", "peer_dts": dts, "weight": w,
-           "laps": laps, "per_lap": per_lap, "ours_s": float(np.median(a[:, 0])), "peer_s": float(np.median(peer_t)),
-           "ratio": float(np.median(ratio)), "ratio_quartiles": [float(x) for x in np.percentile(ratio, [25, 75])]}
+           "laps": laps, "per_lap": per_lap, "ours_s": float(np.median(lap_least[:, 0])),
+           "peer_s": float(np.median(peer_time(lap_least))), "ratio": float(np.median(ratio)),
+           "ratio_quartiles": [float(x) for x in np.percentile(ratio, [25, 75])],
+           "ours_least_s": float(least[0]), "peer_least_s": float(peer_time(least)),
+           "ratio_least": float(peer_time(least) / least[0])}
     res["interleaved"] = out
     log(out)
     return out
@@ -346,6 +360,24 @@ def _fmt(r: dict, unit: str) -> str:
             f"{r['max_error']:.1e} | {r['steps']} | {comp} |")
 
 
+def _relative(x: float) -> str:
+    return f"{x:.2f}× faster" if x >= 1 else f"{1 / x:.2f}× slower"
+
+
+def _interleaved_line(chk: dict) -> str:
+    q = sorted(chk["ratio_quartiles"])
+    spread = f"{q[0]:.2f}–{q[1]:.2f}" if chk["ratio"] >= 1 else f"{1 / q[1]:.2f}–{1 / q[0]:.2f}"
+    line = (f"Interleaved check of that ratio ({chk['laps']} laps of {chk['per_lap']} runs per side; "
+            f"`_wp.check_interleaved`), against {chk['peer']} at the target (steps "
+            f"{', '.join(f'{d:g}' for d in chk['peer_dts'])} s): median over laps of each lap's least times, ours "
+            f"{fmt_time(chk['ours_s'])} against {fmt_time(chk['peer_s'])}: ours **{_relative(chk['ratio'])}** "
+            f"(lap quartiles {spread}×)")
+    if "ratio_least" in chk:
+        line += (f"; each side's least over all laps, ours {fmt_time(chk['ours_least_s'])} against "
+                 f"{fmt_time(chk['peer_least_s'])}: {_relative(chk['ratio_least'])}")
+    return line + "."
+
+
 def markdown(results: dict, *, all_rows: bool = False) -> str:
     env, unit = results["environment"], results["unit"]
     load = env["load_average_1_5_15min"][0]
@@ -367,14 +399,7 @@ def markdown(results: dict, *, all_rows: bool = False) -> str:
                   f"{fmt_time(best['wall_s'])}; " + "; ".join(parts) + ".**", ""]
         chk = results.get("interleaved")
         if chk:
-            x = chk["ratio"]
-            q = chk["ratio_quartiles"]
-            rel = f"{x:.2f}× faster" if x >= 1 else f"{1 / x:.2f}× slower"
-            lines += [f"Interleaved check of that ratio ({chk['laps']} laps, each side the least of {chk['per_lap']} "
-                      f"runs per lap; `_wp.check_interleaved`): ours {fmt_time(chk['ours_s'])}, {chk['peer']} "
-                      f"{fmt_time(chk['peer_s'])} at the target (steps {', '.join(f'{d:g}' for d in chk['peer_dts'])} "
-                      f"s): ours **{rel}** (median of lap ratios; quartiles {q[0]:.2f}–{q[1]:.2f}, > 1: ours "
-                      "faster).", ""]
+            lines += [_interleaved_line(chk), ""]
     over = " over the whole run" if results.get("error_key") == "max_error" else ""
     lines += [f"Cheapest run reaching {results['target_error']:g} {unit}{over}:", "",
               "| method | setting | wall time | final error | max error | steps | compile |",

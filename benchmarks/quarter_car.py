@@ -132,8 +132,11 @@ def run() -> dict:
                      {"what": f"ours Dopri8 rtol {REF['rtol']:g} atol {REF['rtol'] * 1e-2:g}",
                       "steps": int(ref_steps)}, rows, started, notes=notes)
     res["notes"] += _wp.headline_notes(res)
-    _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False), lambda dt, _: _c_make(dt)[0])
-    mjcb.uninstall()
+    try:
+        _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False), lambda dt, _: _c_make(dt)[0])
+    finally:
+        mjcb.uninstall()
+    res["elapsed_s"] = time.perf_counter() - started
     return res
 
 

@@ -127,6 +127,7 @@ def run_chain(joint: str, n: int) -> dict:
     res["notes"] += _wp.headline_notes(res)
     mujoco_at = _mujoco_rollout(geom, sites)
     _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False), lambda dt, _: mujoco_at(dt)[0])
+    res["elapsed_s"] = time.perf_counter() - started
     return res
 
 

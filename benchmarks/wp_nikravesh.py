@@ -199,9 +199,12 @@ def run() -> dict:
                      for n in _wp.headline_notes({**res, **res["trajectory_headline"]})]
     res["callback_cost"] = cost
     # the twin's method label is "MuJoCo C twin <integrator> (mujoco.rollout)"
-    _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False),
-                          lambda dt, row: _c_rollout(dt, row["method"].split()[3]), log=lambda r: print(r, flush=True))
-    mjcb.uninstall()
+    try:
+        _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False),
+                              lambda dt, row: _c_rollout(dt, row["method"].split()[3]),
+                              log=lambda r: print(r, flush=True))
+    finally:
+        mjcb.uninstall()
     res["elapsed_s"] = time.perf_counter() - started
     return res
 

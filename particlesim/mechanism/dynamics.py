@@ -46,7 +46,7 @@ def mass_properties(mech: Mechanism) -> Prepared:
     """The parameter-only quantities (mass matrix, its inverse, the rows' constant parts); pass them as ``props``
     to the functions of this module to compute them once for many states. Differentiate with respect to the
     mechanism (``mass_properties`` inside the differentiated function), not with respect to the fields of a
-    ``props``: several fields hold one quantity in different forms (``a = dw d^T``, ...), and the multipliers'
+    ``props``: several fields hold one quantity in different forms (``a = d minv d^T``, ...), and the multipliers'
     solve takes its derivative from some of them only (:func:`~._algebra.schur_solve`)."""
     return prepare(mech)
 
