@@ -196,6 +196,10 @@ def test_link_parameters_by_name(small_tree):
         assert max_rel(np.delete(np.asarray(model.with_params(link={name: given}).inertia), k, 0),
                        np.delete(np.asarray(model.inertia), k, 0)) == 0.0  # other links untouched
     q = _state(model, 0)[0]
+    rot, pos = link_poses(model, q)  # independent of the recipe: doubling the mass adds m g . x_com, no more
+    du = potential_energy(model.with_params(link={name: {"mass": 2.0 * m}}), q) - potential_energy(model, q)
+    expected = -m * jnp.dot(model.gravity, rot[k] @ c + pos[k])
+    assert abs(float(du - expected)) <= EXACT_RTOL * float(abs(expected))
     energy = jax.jit(lambda mass: potential_energy(model.with_params(link={name: {"mass": mass}}), q))
     h = 1e-6
     fd = (energy(m + h) - energy(m - h)) / (2 * h)
@@ -215,3 +219,20 @@ def test_link_parameters_by_name(small_tree):
         massless.with_params(link={name: {"mass": 1.0}})
     whole = massless.with_params(link={name: {"mass": m, "com": c, "inertia": i_com}})
     assert max_rel(whole.inertia[k], model.inertia[k]) <= EXACT_RTOL
+
+
+def test_parameter_leaves_of_another_shape_are_refused_by_name(small_tree):
+    """``with_params`` refuses a leaf whose shape is not this model's (behind leading axes of stacked models, which
+    stay allowed), naming the leaf and the shape wanted, also for a term the model lacks and under a trace."""
+    from particlesim.errors import ModelError
+
+    model, n = small_tree, small_tree.n_joints
+    for leaf, value in (("inertia", np.zeros((n - 1, 10))), ("origin_xyz", np.zeros((n, 2))),
+                        ("gravity", np.zeros(2)), ("viscous", np.zeros(n + 1)), ("stiffness", np.zeros(n + 2)),
+                        ("limits", np.zeros((n, 3)))):
+        with pytest.raises(ModelError, match=rf"{leaf} must have shape"):
+            model.with_params(**{leaf: value})
+    with pytest.raises(ModelError, match="gravity must have shape"):
+        jax.jit(lambda g: model.with_params(gravity=g).gravity)(jnp.zeros(4))
+    stacked = model.with_params(inertia=jnp.stack([model.inertia, 1.1 * model.inertia]))
+    assert stacked.inertia.shape == (2, n, 10)
