@@ -41,6 +41,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ..errors import ModelError
+from ..inertia import _is_concrete, check_inertia
+
 __all__ = ["Mechanism", "Topology", "DotRows", "LinearRows", "DriveRows", "AppliedForce", "AppliedTorque",
            "BodyLoad", "BodyState"]
 
@@ -342,15 +345,24 @@ class Mechanism(eqx.Module):
         ``body={"wheel": {"mass": 20.0, "com": ..., "inertia": ...}}``, ``spring={"suspension": {"stiffness": ...,
         "damping": ..., "free_length": ...}}``, ``tyre={"tyre": {"stiffness": ..., "damping": ..., "radius": ...,
         "ground": ...}}``, ``rotational={"torsion bar": {"stiffness": ..., "damping": ..., "free_angle": ...}}``,
-        ``gravity=(0, 0, -9.81)``. Unknown names or fields raise ``KeyError``. Values are not
-        checked here; the simulation refuses non-finite ones. Each field is replaced alone: a new ``mass`` keeps
-        the body's inertia tensor about its centre of mass, so for a body that scales with its mass (a uniform rod
-        made heavier) pass ``"inertia": scale * mech.body_inertia[mech.body_index(name)]`` with it."""
+        ``gravity=(0, 0, -9.81)``. Unknown names or fields raise ``KeyError``. A value of the wrong shape raises
+        :class:`~particlesim.errors.ModelError` naming it; concrete values are checked as the builder checks them
+        (a body's mass, centre of mass and inertia by :func:`~particlesim.inertia.check_inertia`; stiffness, damping,
+        lengths and radii finite and non-negative), traced ones are not (the simulation refuses non-finite ones).
+        Each field is replaced alone: a new ``mass`` keeps the body's inertia tensor about its centre of mass, so for
+        a body that scales with its mass (a uniform rod made heavier) pass ``"inertia": scale *
+        mech.body_inertia[mech.body_index(name)]`` with it."""
         new = {}
 
-        def put(field: str, i: int, value):
+        def put(field: str, i: int, value, label: str):
             arr = new.get(field, getattr(self, field))
-            new[field] = arr.at[i].set(jnp.asarray(value, dtype=arr.dtype))
+            if jnp.shape(value) != arr.shape[1:]:
+                raise ModelError(f"with_params: {label} must have shape {arr.shape[1:]}, got {jnp.shape(value)}")
+            value = jnp.asarray(value, dtype=arr.dtype)
+            if field.split("_", 1)[1] in ("stiffness", "damping", "free_length", "radius") and _is_concrete(value) \
+                    and not (np.isfinite(float(value)) and float(value) >= 0.0):
+                raise ModelError(f"with_params: {label} must be finite and non-negative, got {float(value)!r}")
+            new[field] = arr.at[i].set(value)
 
         groups = ((body, "body", self.topo.body_names, ("mass", "com", "inertia")),
                   (spring, "spring", self.topo.spring_names, ("stiffness", "damping", "free_length")),
@@ -363,7 +375,11 @@ class Mechanism(eqx.Module):
                 for field, value in entries.items():
                     if field not in fields:
                         raise KeyError(f"{prefix} {name!r} has no parameter {field!r}; choose from {list(fields)}")
-                    put(f"{prefix}_{field}", names.index(name), value)
+                    put(f"{prefix}_{field}", names.index(name), value, f"{prefix} {name!r} {field.replace('_', ' ')}")
+        for name in body or {}:  # the body's mass distribution as a whole, as the builder checks it (concrete only)
+            b = self.topo.body_names.index(name)
+            check_inertia(*(new.get(f, getattr(self, f))[b] for f in ("body_mass", "body_com", "body_inertia")),
+                          f"with_params: body {name!r}", degenerate_ok=True)
         if gravity is not None:
             new["gravity"] = jnp.asarray(gravity, dtype=float)
         return eqx.tree_at(lambda m: [getattr(m, f) for f in new], self, list(new.values()))

@@ -114,3 +114,28 @@ def test_applied_torque_of_the_wrong_shape_is_named():
         accelerations(mech, 0.0, q0, 0 * q0)
     with pytest.raises(ModelError, match=match):
         body_reactions(mech, 0.0, q0, 0 * q0)
+
+
+def test_parameters_by_name_are_checked_as_the_builder_checks_them(four_bar):
+    """``with_params`` refuses, naming the body or element: a value of the wrong shape, a negative or NaN mass or a
+    tensor breaking the triangle inequality (``check_inertia``), a negative or non-finite stiffness, damping or free
+    length; a physical change is accepted, also traced (values under a trace are not checked here)."""
+    import jax
+    import jax.numpy as jnp
+
+    mb = four_bar()
+    mb.spring_damper("spring", "A", "C", stiffness=10.0, damping=0.5, free_length=2.0)
+    mech, _ = mb.build(dof=3)
+    for kw, match in (({"body": {"coupler": {"com": (1.0, 1.0)}}}, r"body 'coupler' com must have shape \(3,\)"),
+                      ({"spring": {"spring": {"stiffness": np.ones(2)}}}, r"spring 'spring' stiffness must have shape"),
+                      ({"body": {"coupler": {"mass": -1.0}}}, "body 'coupler': mass must be positive"),
+                      ({"body": {"coupler": {"mass": float("nan")}}}, "body 'coupler': mass contains NaN"),
+                      ({"body": {"coupler": {"inertia": np.diag([1.0, 1.0, 3.0])}}}, "triangle inequality"),
+                      ({"spring": {"spring": {"damping": -0.1}}}, "spring 'spring' damping must be finite and non"),
+                      ({"spring": {"spring": {"free_length": float("inf")}}}, "spring 'spring' free length must be")):
+        with pytest.raises(ModelError, match=match):
+            mech.with_params(**kw)
+    heavier = mech.with_params(body={"coupler": {"mass": 2.0}}, spring={"spring": {"stiffness": 20.0}})
+    assert float(heavier.body_mass[mech.body_index("coupler")]) == 2.0
+    traced = jax.jit(lambda m: mech.with_params(body={"coupler": {"mass": m}}).body_mass)(jnp.asarray(3.0))
+    assert float(traced[mech.body_index("coupler")]) == 3.0
