@@ -38,7 +38,7 @@ from .model import PRISMATIC, REVOLUTE, TreeModel
 
 __all__ = ["UNROLL_LINKS", "ONE_STATE_SWEEPS_DEPTH", "BATCH_CHUNK", "BATCH_CHUNK_ABOVE", "batch_chunks",
            "batch_lanes", "state_by_state", "WIDE_BATCH", "wide_batch", "LOOP_CHUNK_LINK_STATES", "LOOP_CHUNK_MAX",
-           "supports_aba", "one_state_sweeps", "aba", "aba_one_state"]
+           "supports_aba", "one_state_sweeps", "SHALLOW_DEPTH", "SHALLOW_CHUNK", "tree_depth", "aba", "aba_one_state"]
 
 
 @functools.lru_cache(maxsize=64)
@@ -82,8 +82,9 @@ def _children(parents: tuple) -> np.ndarray:
 UNROLL_LINKS = 32
 
 
-#: A batch of states runs the sweeps on chunks of about this many states, one chunk after another, once it is larger
-#: than :data:`BATCH_CHUNK_ABOVE` (:func:`batch_chunks`). A link's articulated inertias for 1024 states take 295 kB,
+#: A batch of states of a deep tree (written-out sweeps, more than :data:`SHALLOW_DEPTH` links from root to tip) runs
+#: the sweeps on chunks of about this many states, one chunk after another, once it is larger than
+#: :data:`BATCH_CHUNK_ABOVE` (:func:`batch_chunks`). A link's articulated inertias for 1024 states take 295 kB,
 #: within a core's L2 cache on the CPUs measured; the whole batch at once costs more per state as it grows (Krang on
 #: one core, per state: 6.1 us for 1024 states, 7.2 us for 1536, 10 us for 2048, 21-23 us for 4096-8192; in chunks
 #: of about 1024, 6.3-6.5 us at every size). Smaller batches cost more per state (6.2-7.6 us from 72 to 520 states,
@@ -91,8 +92,19 @@ UNROLL_LINKS = 32
 BATCH_CHUNK = 1024
 #: Batches up to this size run whole (their chunks would fall to about 700 states).
 BATCH_CHUNK_ABOVE = 1408
-#: Batches of at least this many states of a tree up to :data:`UNROLL_LINKS` links (every chunk of
-#: :func:`batch_chunks` is as wide) are compiled with XLA's fusion emitters kept (:func:`wide_batch`;
+#: Shallow trees (at most :data:`SHALLOW_DEPTH` links from the root to any tip) run a batch in chunks of about
+#: :data:`SHALLOW_CHUNK` states instead (136 lanes for 1024 states: :func:`batch_lanes`), which keeps every link's
+#: quantities of a chunk in a core's L2 cache through the three sweeps, while the sweeps' kernel count, paid once
+#: per chunk, grows with the depth (links of one depth run together). Measured in one process per tree, one core,
+#: interleaved, median per state against the whole batch: Krang (18 links, depth 10) 0.83-0.85x at 1024 states for
+#: chunks of 114-147 states (0.91 of 103, 1.0 of 64-72 or 256), 0.79x at 705 and 2048, 0.72x at 300, 0.99x at 192;
+#: serial chains of 7 and 12 links 0.69x and 0.80x at 1024; chains of 18 and 25 links 1.08x and 1.26x (slower:
+#: the reason for the depth bound). Compiled with :data:`particlesim._xla.BATCH_OPTIONS` (not wide): Krang's
+#: 1024 states 5.26 against 5.55 us per state with the wide options, compile 7.6 against 12.9 s.
+SHALLOW_DEPTH = 12
+SHALLOW_CHUNK = 128
+#: Chunks of at least this many states (of a tree up to :data:`UNROLL_LINKS` links: the whole batch or every chunk
+#: of :func:`batch_chunks`) are compiled with XLA's fusion emitters kept (:func:`wide_batch`;
 #: ``particlesim._xla.cpu_options(batch="wide")`` says why).
 WIDE_BATCH = 705
 
@@ -106,8 +118,10 @@ LOOP_CHUNK_LINK_STATES = 8800
 LOOP_CHUNK_MAX = 88
 
 
-def batch_chunks(size: int, n_links: int = 0) -> int:
-    """How many chunks a batch of ``size`` states is evaluated in. Trees up to :data:`UNROLL_LINKS` links: 1 up to
+def batch_chunks(size: int, n_links: int = 0, depth: int | None = None) -> int:
+    """How many chunks a batch of ``size`` states is evaluated in. Trees up to :data:`UNROLL_LINKS` links at most
+    :data:`SHALLOW_DEPTH` deep (``depth``: links from the root to the deepest tip, :func:`tree_depth`): the nearest
+    whole number of :data:`SHALLOW_CHUNK` chunks (at least one). Deeper ones (or ``depth`` not given): 1 up to
     :data:`BATCH_CHUNK_ABOVE` states, else the nearest whole number of :data:`BATCH_CHUNK` chunks (at least two;
     chunks of 705 to 1280 states). Larger trees (``n_links`` above :data:`UNROLL_LINKS`): chunks of at most
     :data:`LOOP_CHUNK_LINK_STATES` / ``n_links`` states rounded down to a multiple of 4 (8 to
@@ -115,9 +129,18 @@ def batch_chunks(size: int, n_links: int = 0) -> int:
     if n_links > UNROLL_LINKS:
         per = min(LOOP_CHUNK_MAX, max(8, LOOP_CHUNK_LINK_STATES // n_links // 4 * 4))
         return max(1, -(-size // per))
+    if depth is not None and depth <= SHALLOW_DEPTH:
+        return max(1, round(size / SHALLOW_CHUNK))
     if size <= BATCH_CHUNK_ABOVE:
         return 1
     return max(2, round(size / BATCH_CHUNK))
+
+
+@functools.lru_cache(maxsize=64)
+def tree_depth(parents: tuple) -> int:
+    """Links from the root to the deepest tip (1 for links all attached to the world; 0 for no link); ``parents`` as
+    :attr:`~.model.TreeModel.parents` (a tuple)."""
+    return max(_depths(parents), default=-1) + 1
 
 
 def state_by_state(size: int, n_links: int) -> bool:
@@ -134,10 +157,13 @@ def state_by_state(size: int, n_links: int) -> bool:
     return 0 < size <= n_links <= UNROLL_LINKS
 
 
-def wide_batch(size: int, n_links: int) -> bool:
-    """Whether a batch of ``size`` states of a tree of ``n_links`` links is compiled as a wide batch (at least
-    :data:`WIDE_BATCH` states, written-out sweeps: up to :data:`UNROLL_LINKS` links)."""
-    return size >= WIDE_BATCH and n_links <= UNROLL_LINKS
+def wide_batch(size: int, n_links: int, depth: int | None = None) -> bool:
+    """Whether a batch of ``size`` states of a tree of ``n_links`` links (``depth`` as for :func:`batch_chunks`) is
+    compiled as a wide batch: written-out sweeps (up to :data:`UNROLL_LINKS` links) on chunks of at least
+    :data:`WIDE_BATCH` states (never for shallow trees, whose chunks are narrower)."""
+    if n_links > UNROLL_LINKS or size <= 0:
+        return False
+    return -(-size // batch_chunks(size, n_links, depth)) >= WIDE_BATCH
 
 
 def batch_lanes(per: int, n_links: int = 0) -> int:

@@ -26,7 +26,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .aba import (aba, aba_one_state, batch_chunks, batch_lanes, one_state_sweeps, state_by_state, supports_aba,
-                  wide_batch)
+                  tree_depth, wide_batch)
 from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
@@ -322,7 +322,7 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     size = math.prod(q.shape[:-1])
     by_state = (type(q) is _ArrayImpl and type(qd) is _ArrayImpl and type(tau) is _ArrayImpl
                 and state_by_state(size, model.n_joints) and top_level())
-    wide = wide_batch(size, model.n_joints) and supports_aba(model)
+    wide = wide_batch(size, model.n_joints, tree_depth(model.parents)) and supports_aba(model)
     entry = _batched_wide if wide else _batched  # the same program; other XLA options for wide batches
     return entry(model, q, qd, tau, smooth_friction, by_state)
 
@@ -338,7 +338,8 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction, by_state=False):
     """A batch, compiled once per model structure and batch shape (hundreds of small operations would otherwise
     be dispatched one by one when called outside ``jit``), with XLA's reductions on its YNNPACK kernels
     (:data:`particlesim._xla.BATCH_OPTIONS`: the sweeps' reductions run over the trailing batch axis). Batches run in
-    chunks (:func:`~.aba.batch_chunks`: past 1408 states up to 32 links, past about 8800 / N states beyond), padded
+    chunks (:func:`~.aba.batch_chunks`: of about 128 states for trees up to 32 links and 12 deep, past 1408 states
+    for deeper ones up to 32 links, past about 8800 / N states beyond), padded
     as :func:`~.aba.batch_lanes` says (multiples of 64 lanes avoided; a multiple of 4 per chunk beyond 32 links). At
     most one state per link passed from Python (``by_state``, decided by :func:`forward_dynamics` with
     :func:`~.aba.state_by_state`): a loop over the one-state program. Wide batches go through :data:`_batched_wide`,
@@ -357,7 +358,7 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction, by_state=False):
     batch, n = q.shape[:-1], q.shape[-1]
     q, qd, rhs = (x.reshape(-1, x.shape[-1]) for x in (q, qd, rhs))  # (B, n): one batch axis
     size = q.shape[0]
-    k = batch_chunks(size, model.n_joints)
+    k = batch_chunks(size, model.n_joints, tree_depth(model.parents))
     lanes = batch_lanes(-(-size // k), model.n_joints)
     if size == 0 or (k == 1 and lanes == size):
         return aba(model, q.T, qd.T, rhs.T).T.reshape(batch + (n,))

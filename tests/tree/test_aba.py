@@ -100,7 +100,7 @@ def test_large_tree_batches_run_in_chunks_against_pinocchio(case):
 
     model, oracle = case
     if model.n_joints <= UNROLL_LINKS:
-        pytest.skip("written-out trees chunk only past BATCH_CHUNK_ABOVE states (test below)")
+        pytest.skip("written-out trees: test_large_batches_run_in_chunks_with_the_same_results")
     assert [aba_module.batch_chunks(s, n) for s, n in ((100, 40), (256, 200), (256, 33), (5, 5000))] == [2, 6, 3, 1]
     assert [aba_module.batch_lanes(p, n) for p, n in ((50, 40), (86, 100), (64, 40), (5, 40))] == [52, 88, 64, 5]
     rng = np.random.default_rng(15)
@@ -197,13 +197,18 @@ def test_batched_gradients(tiny_tree, by_state):
 
 
 def test_large_batches_run_in_chunks_with_the_same_results(small_tree):
-    """Past BATCH_CHUNK_ABOVE states a batch is evaluated chunk by chunk (the last one padded): the same values as
-    state by state, leading batch axes kept."""
-    from particlesim.tree import aba as aba_module
+    """A shallow tree's batch runs in chunks of about SHALLOW_CHUNK states (1509 states: 12 chunks of 126 lanes, the
+    last one padded): the same values as state by state, leading batch axes kept. A deep tree's runs whole up to
+    BATCH_CHUNK_ABOVE states and in chunks of about BATCH_CHUNK beyond: only the count differs (checked here), the
+    chunked code is the same."""
+    from particlesim.tree import aba as aba_module, dynamics
 
-    lead = (3, aba_module.BATCH_CHUNK_ABOVE // 3 + 34)  # 1509 states: two chunks, the last one padded
+    lead = (3, aba_module.BATCH_CHUNK_ABOVE // 3 + 34)  # 1509 states
     size = lead[0] * lead[1]
-    assert aba_module.batch_chunks(size) == 2 and size % 2
+    depth = aba_module.tree_depth(small_tree.parents)
+    assert depth <= aba_module.SHALLOW_DEPTH
+    assert aba_module.batch_chunks(size, small_tree.n_joints, depth) == 12 and size % 12
+    assert aba_module.batch_chunks(size) == 2 and aba_module.batch_chunks(size, 5, aba_module.SHALLOW_DEPTH + 1) == 2
     n = small_tree.nq
     rng = np.random.default_rng(12)
     q, qd, tau = (rng.normal(size=lead + (n,)) for _ in range(3))
@@ -211,6 +216,26 @@ def test_large_batches_run_in_chunks_with_the_same_results(small_tree):
     assert out.shape == lead + (n,)
     one = jax.jit(jax.vmap(jax.vmap(lambda a, b, c: forward_dynamics(small_tree, a, b, c))))
     assert max_rel(out, one(q, qd, tau)) <= SAME_RTOL
+    with _sweeps_seen() as widths:
+        jax.make_jaxpr(lambda x: dynamics._batched.raw(small_tree, x, x, x, None))(jnp.asarray(q))
+    assert widths == [126]
+
+
+def test_shallow_trees_chunk_by_depth():
+    """Chunks of about SHALLOW_CHUNK states for trees at most SHALLOW_DEPTH deep (Krang's 1024 states: 8 chunks of 136
+    lanes), the whole batch or chunks of about BATCH_CHUNK deeper; the depth counted from the parents; wide entries
+    only for chunks of at least WIDE_BATCH states."""
+    from particlesim.tree import aba as aba_module
+
+    assert [aba_module.tree_depth(p) for p in ((), (-1,), (-1, -1), (-1, 0, 1), (-1, 0, 0, 2), (-1, 0, 1, 2, 2, 4))] \
+        == [0, 1, 1, 3, 3, 5]
+    shallow, deep = aba_module.SHALLOW_DEPTH, aba_module.SHALLOW_DEPTH + 1
+    assert [aba_module.batch_chunks(s, 18, shallow) for s in (0, 5, 191, 192, 1024, 2048)] == [1, 1, 1, 2, 8, 16]
+    assert aba_module.batch_lanes(-(-1024 // 8)) == 136
+    assert [aba_module.batch_chunks(s, 18, deep) for s in (192, 1024, 1408, 2048)] == [1, 1, 1, 2]
+    assert [aba_module.wide_batch(s, 18, shallow) for s in (705, 1024, 4096)] == [False, False, False]
+    assert [aba_module.wide_batch(s, 18, deep) for s in (704, 705, 4096)] == [False, True, True]
+    assert not aba_module.wide_batch(0, 18, deep)
 
 
 def test_batches_padded_off_multiples_of_64_lanes(small_tree):
@@ -233,7 +258,9 @@ def test_chunked_batches_differentiate(tiny_tree, monkeypatch):
 
     monkeypatch.setattr(aba_module, "BATCH_CHUNK_ABOVE", 4)
     monkeypatch.setattr(aba_module, "BATCH_CHUNK", 8)
+    monkeypatch.setattr(aba_module, "SHALLOW_CHUNK", 8)
     assert aba_module.batch_chunks(22) == 3
+    assert aba_module.batch_chunks(22, tiny_tree.n_joints, aba_module.tree_depth(tiny_tree.parents)) == 3
     model = tiny_tree
     rng = np.random.default_rng(13)
     q, qd, tau = (jnp.asarray(rng.normal(size=(22, model.nq))) for _ in range(3))
@@ -255,6 +282,7 @@ def test_batches_evenly_divided_still_run_in_chunks(tiny_tree, monkeypatch):
 
     monkeypatch.setattr(aba_module, "BATCH_CHUNK_ABOVE", 4)
     monkeypatch.setattr(aba_module, "BATCH_CHUNK", 8)
+    monkeypatch.setattr(aba_module, "SHALLOW_CHUNK", 8)
     x = jnp.zeros((16, tiny_tree.nq))
     with _sweeps_seen() as widths:
         jax.make_jaxpr(lambda x: dynamics._batched.raw(tiny_tree, x, x, x, None))(x)
@@ -264,12 +292,17 @@ def test_batches_evenly_divided_still_run_in_chunks(tiny_tree, monkeypatch):
 
 
 @pytest.mark.parametrize("states", [2, 8, 705])  # 5 links: state by state (from Python), the sweeps, a wide batch
-def test_a_batch_compiles_once_per_structure(small_tree, states):
-    """New parameter values and new states of the same shape reuse the compiled batch (trace counter)."""
+def test_a_batch_compiles_once_per_structure(small_tree, states, monkeypatch):
+    """New parameter values and new states of the same shape reuse the compiled batch (trace counter). The wide
+    batch: the tree treated as deep (a shallow one's chunks are narrow)."""
     from particlesim import _ode
-    from particlesim.tree.aba import WIDE_BATCH
+    from particlesim.tree import aba as aba_module
 
-    name = "forward_dynamics wide batch" if states >= WIDE_BATCH else "forward_dynamics batch"
+    if states >= aba_module.WIDE_BATCH:
+        monkeypatch.setattr(aba_module, "SHALLOW_DEPTH", 0)
+    wide = aba_module.wide_batch(states, small_tree.n_joints, aba_module.tree_depth(small_tree.parents))
+    assert wide == (states >= aba_module.WIDE_BATCH)
+    name = "forward_dynamics wide batch" if wide else "forward_dynamics batch"
     rng = np.random.default_rng(11)
     q, qd, tau = (rng.normal(size=(states, small_tree.nq)) for _ in range(3))
     forward_dynamics(small_tree, q, qd, tau)
@@ -391,13 +424,15 @@ def test_deep_small_tree_single_state_takes_the_sweeps_and_matches_pinocchio():
         assert max_rel(ours, composite(model, q, qd, tau)) <= PIN_RTOL
 
 
-def test_wide_batches_take_the_wide_entry(tiny_tree):
-    """From WIDE_BATCH states on (trees up to UNROLL_LINKS links) a batch goes to the wide entry: the same program
-    compiled with the batch options alone (XLA's fusion emitters kept). The choice by size (fails if the sizes are
-    swapped or the wide entry is never taken), its values against one state at a time, and its compiler options."""
+def test_wide_batches_take_the_wide_entry(tiny_tree, monkeypatch):
+    """From WIDE_BATCH states on (deep trees up to UNROLL_LINKS links; here the tiny tree treated as deep) a batch
+    goes to the wide entry: the same program compiled with the batch options alone (XLA's fusion emitters kept). The
+    choice by size (fails if the sizes are swapped or the wide entry is never taken), its values against one state at
+    a time, and its compiler options."""
     from particlesim._xla import cpu_options
     from particlesim.tree import aba as aba_module, dynamics
 
+    monkeypatch.setattr(aba_module, "SHALLOW_DEPTH", 0)
     n = tiny_tree.n_joints
     wide = aba_module.WIDE_BATCH
     assert [aba_module.wide_batch(s, n) for s in (wide - 1, wide, 4096)] == [False, True, True]
