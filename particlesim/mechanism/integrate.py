@@ -32,6 +32,7 @@ import numpy as np
 from .. import _ode
 from .._ode import ADJOINTS, Solution
 from ..errors import ModelError
+from ..inertia import physical_inertia
 from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_project
 from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian, prepare, residual, rows,
                        schur, schur_solve, solve_schur, velocity_target)
@@ -122,6 +123,42 @@ def parameter_groups(mech: Mechanism) -> list:
     return [(lab, arr) for lab, arr in groups if arr.size]
 
 
+def physical_checks(mech: Mechanism, entry: str = "simulate_mechanism") -> tuple | None:
+    """Run-time flags of non-physical parameter values, with their messages (for :func:`_ode.runtime_checks`): a
+    body whose mass is not positive or whose inertia about its centre of mass is not symmetric, positive
+    semi-definite with principal moments meeting the triangle inequalities (the builder's and
+    :meth:`~.model.Mechanism.with_params`' conditions, :func:`~particlesim.inertia.check_inertia` with
+    ``degenerate_ok``, for values they did not see: traced ones, or leaves set by ``eqx.tree_at``;
+    :func:`~particlesim.inertia.physical_inertia`); a negative stiffness, damping, free length or radius."""
+    topo = mech.topo
+    flags, msgs = [], []
+    if topo.body_names:
+        ok = physical_inertia(mech.body_mass, mech.body_inertia)
+        flags.append(~ok)
+        msgs += [f"{entry}: body '{n}' is not physical: its mass must be positive and its inertia about the centre "
+                 "of mass symmetric, positive semi-definite, with principal moments meeting the triangle inequality "
+                 "(a value set under a trace, or by eqx.tree_at, which are not checked when set)"
+                 for n in topo.body_names]
+    for prefix, names, fields in (("spring", topo.spring_names, ("stiffness", "damping", "free_length")),
+                                  ("tyre", topo.tyre_names, ("stiffness", "damping", "radius")),
+                                  ("rotational", topo.rotational_names, ("stiffness", "damping"))):
+        for f in fields:
+            if names:
+                flags.append(~(getattr(mech, f"{prefix}_{f}") >= 0.0))
+                msgs += [f"{entry}: {prefix} '{n}' {f.replace('_', ' ')} must be non-negative" for n in names]
+    if not flags:
+        return None
+    return jnp.concatenate(flags), msgs
+
+
+def _merge_checks(*checks):
+    """One ``(flags, messages)`` of several (``None`` entries skipped; the first flagged entry is reported)."""
+    checks = [c for c in checks if c is not None]
+    if not checks:
+        return None
+    return jnp.concatenate([c[0] for c in checks]), [m for c in checks for m in c[1]]
+
+
 def _initial_contact(deflection, q0, qd0, xdd_free):
     """Each tyre's law at the start (1.0 in contact): compressed (deflection < 0), or at exactly zero deflection
     heading into the ground: deflection rate < 0, or at rest with the free (no-contact) acceleration pressing in.
@@ -153,7 +190,7 @@ def _budget_hint(mech: Mechanism, solver: str, solve: str) -> str:
 @_ode.cached("simulate_mechanism")
 def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabilise, baumgarte, solve,
               max_events=0, warn_switch=False):
-    param_bad = _ode.check_finite("simulate_mechanism", parameter_groups(mech))
+    param_bad = _merge_checks(_ode.check_finite("simulate_mechanism", parameter_groups(mech)), physical_checks(mech))
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate_mechanism", "(q0, qd0)")
     plan = chain_plan(mech) if solve == "chain" else None
     # The chain path needs only the bodies' mass blocks; the dense path its prepared constants (Prepared).
@@ -289,8 +326,9 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
     or is reported in ``Solution.status`` with NaN states (``throw=False``).
 
     Raises ``ValueError`` for unknown names, bad tolerances or times, a non-finite initial state; ``ModelError``
-    for wrong state shapes or non-finite mechanism parameters (at run time under jit); the error names the
-    offending parameter.
+    for wrong state shapes or non-finite mechanism parameters (at run time under jit); at run time, non-physical
+    parameter values that were not checked when set (traced values given to ``with_params``, leaves set by
+    ``eqx.tree_at``: :func:`physical_checks`); the error names the offending parameter.
     """
     cfg = _ode.settings(solver=solver, adjoint=adjoint, max_steps=max_steps, throw=throw, progress=progress,
                         pid=pid, save_ts=saveat_ts is not None)

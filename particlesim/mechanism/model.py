@@ -348,7 +348,8 @@ class Mechanism(eqx.Module):
         ``gravity=(0, 0, -9.81)``. Unknown names or fields raise ``KeyError``. A value of the wrong shape raises
         :class:`~particlesim.errors.ModelError` naming it; concrete values are checked as the builder checks them
         (a body's mass, centre of mass and inertia by :func:`~particlesim.inertia.check_inertia`; stiffness, damping,
-        lengths and radii finite and non-negative), traced ones are not (the simulation refuses non-finite ones).
+        lengths and radii finite and non-negative); traced ones are checked by the simulation when it runs
+        (:func:`~.integrate.physical_checks`: non-finite or non-physical values raise, naming the body or element).
         Each field is replaced alone: a new ``mass`` keeps the body's inertia tensor about its centre of mass, so for
         a body that scales with its mass (a uniform rod made heavier) pass ``"inertia": scale *
         mech.body_inertia[mech.body_index(name)]`` with it."""
@@ -356,8 +357,8 @@ class Mechanism(eqx.Module):
 
         def put(field: str, i: int, value, label: str):
             arr = new.get(field, getattr(self, field))
-            if jnp.shape(value) != arr.shape[1:]:
-                raise ModelError(f"with_params: {label} must have shape {arr.shape[1:]}, got {jnp.shape(value)}")
+            if np.shape(value) != arr.shape[1:]:
+                raise ModelError(f"with_params: {label} must have shape {arr.shape[1:]}, got {np.shape(value)}")
             value = jnp.asarray(value, dtype=arr.dtype)
             if field.split("_", 1)[1] in ("stiffness", "damping", "free_length", "radius") and _is_concrete(value) \
                     and not (np.isfinite(float(value)) and float(value) >= 0.0):

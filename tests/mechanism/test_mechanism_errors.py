@@ -139,3 +139,73 @@ def test_parameters_by_name_are_checked_as_the_builder_checks_them(four_bar):
     assert float(heavier.body_mass[mech.body_index("coupler")]) == 2.0
     traced = jax.jit(lambda m: mech.with_params(body={"coupler": {"mass": m}}).body_mass)(jnp.asarray(3.0))
     assert float(traced[mech.body_index("coupler")]) == 3.0
+
+
+def test_non_physical_values_set_under_a_trace_are_refused_at_run_time(four_bar):
+    """Values ``with_params`` cannot check (traced) or that bypass it (``eqx.tree_at``) are refused by
+    ``simulate_mechanism`` when it runs, naming the body or element: a negative mass, a tensor breaking the triangle
+    inequality, a negative damping; NaN is reported as not finite. A physical traced change runs, equal to the same
+    change made concretely."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from particlesim.mechanism import simulate_mechanism
+
+    mb = four_bar()
+    mb.spring_damper("spring", "A", "C", stiffness=10.0, damping=0.5, free_length=2.0)
+    mech, q0 = mb.build(dof=3)
+    q0 = jnp.asarray(q0)
+    b = mech.body_index("coupler")
+
+    def final(m):
+        return simulate_mechanism(m, q0, jnp.zeros_like(q0), 0.0, 0.05).q[-1]
+
+    cases = ((lambda v: mech.with_params(body={"coupler": {"mass": v}}), -1.0, "body 'coupler' is not physical"),
+             (lambda v: mech.with_params(body={"coupler": {"inertia": v}}), jnp.diag(jnp.array([1.0, 1.0, 3.0])),
+              "body 'coupler' is not physical"),
+             (lambda v: mech.with_params(spring={"spring": {"damping": v}}), -0.1,
+              "spring 'spring' damping must be non-negative"),
+             (lambda v: mech.with_params(body={"coupler": {"mass": v}}), jnp.nan,
+              "parameter body 'coupler' mass is not finite"))
+    for set_value, value, match in cases:
+        with pytest.raises(Exception, match=match):
+            jax.block_until_ready(jax.jit(lambda v: final(set_value(v)))(jnp.asarray(value)))
+    bypass = eqx.tree_at(lambda m: m.body_mass, mech, mech.body_mass.at[b].set(-2.0))
+    with pytest.raises(Exception, match="body 'coupler' is not physical"):
+        jax.block_until_ready(final(bypass))
+    traced = jax.jit(lambda v: final(mech.with_params(body={"coupler": {"mass": v}})))(jnp.asarray(2.5))
+    concrete = final(mech.with_params(body={"coupler": {"mass": 2.5}}))
+    assert np.array_equal(np.asarray(traced), np.asarray(concrete))
+
+
+def test_physical_inertia_agrees_with_check_inertia():
+    """The run-time test (principal minors of the second moment, no eigendecomposition) against the eager
+    ``check_inertia(degenerate_ok=True)`` (eigenvalues) on rotated tensors: physical ones, rods and planar bodies
+    (a zero moment, a triangle equality), a negative moment, triangle inequalities broken by 1e-6 and by 1 %, a
+    non-symmetric tensor, and non-positive or NaN masses."""
+    import jax.numpy as jnp
+
+    from particlesim.inertia import InertiaError, check_inertia, physical_inertia
+
+    rng = np.random.default_rng(21)
+    moments = [(1.0, 2.0, 2.5), (0.0, 1.0, 1.0), (1.0, 2.0, 3.0), (0.3, 0.3, 0.6), (-0.1, 1.0, 1.0),
+               (1.0, 2.0, 3.0 + 1e-6), (1.0, 2.0, 3.03), (4.0, 1.0, 1.0), (1e-3, 2e-3, 2.5e-3), (5.0, 5.0, 5.0)]
+    cases = []
+    for mom in moments:
+        r = np.linalg.qr(rng.normal(size=(3, 3)))[0]  # a random orthogonal matrix
+        cases.append((1.5, r @ np.diag(mom) @ r.T))
+    skew = np.diag([1.0, 2.0, 2.5])
+    skew[0, 1] += 1e-3
+    cases += [(1.5, skew), (0.0, np.diag([1.0, 2.0, 2.5])), (-1.0, np.diag([1.0, 2.0, 2.5])),
+              (np.nan, np.diag([1.0, 2.0, 2.5]))]
+    verdicts = np.asarray(physical_inertia(jnp.asarray([m for m, _ in cases]), jnp.asarray([i for _, i in cases])))
+    expected = []
+    for m, i in cases:
+        try:
+            check_inertia(m, np.zeros(3), i, degenerate_ok=True)
+            expected.append(True)
+        except InertiaError:
+            expected.append(False)
+    assert verdicts.tolist() == expected
+    assert expected == [True, True, True, True, False, False, False, False, True, True, False, False, False, False]
