@@ -35,7 +35,9 @@ BATCH_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type":
                  "LIBRARY_FUSION_TYPE_DOT,LIBRARY_FUSION_TYPE_ELTWISE,LIBRARY_FUSION_TYPE_REDUCE"}
 
 
-#: Wide batches (``batch="wide"``: the tree batch entry at :data:`particlesim.tree.aba.WIDE_BATCH` states or more)
+#: Wide batches (``batch="wide"``: the tree batch entry for chunks of :data:`particlesim.tree.aba.WIDE_BATCH` states
+#: or more, i.e. deep trees' batches; shallow trees run chunks of about 128 states,
+#: :func:`~particlesim.tree.aba.batch_chunks`)
 #: take XLA's fusion emitters (set explicitly, so that an ``XLA_FLAGS`` turning them off process-wide does not change
 #: these programs) with :data:`BATCH_OPTIONS`: YNNPACK runs most of the sweeps there and the
 #: operations left to XLA run 3-5 % faster from its fusion emitters, with no slower compile (Krang on one core, per
@@ -75,7 +77,8 @@ def _cpu_options(batch: bool | str) -> dict:
 def compiler_options() -> dict:
     """XLA compiler options that particlesim's entries (``simulate``, ``simulate_mechanism``, the tree and mechanism
     functions) are compiled with at top level; ``{}`` off the CPU (a batch of tree states adds :data:`BATCH_OPTIONS`;
-    one of :data:`~particlesim.tree.aba.WIDE_BATCH` states or more takes :data:`WIDE_BATCH_OPTIONS` instead). For a
+    a deep tree's batch in chunks of :data:`~particlesim.tree.aba.WIDE_BATCH` states or more takes
+    :data:`WIDE_BATCH_OPTIONS` instead). For a
     user's own top-level ``jax.jit``: ``jax.jit(loss, compiler_options=particlesim.compiler_options())`` compiles about
     twice as fast on the CPU with the same run time (:data:`COMPILE_OPTIONS`). A copy: changing it changes nothing
     here."""

@@ -193,25 +193,23 @@ def check_inertia(mass, com, inertia, name: str = "body", *, degenerate_ok: bool
 
 
 def physical_inertia(mass, inertia) -> Array:
-    """Whether ``(mass, inertia about the centre of mass)`` is physical, as :func:`check_inertia` with
-    ``degenerate_ok`` judges it (shapes ``(...)`` and ``(..., 3, 3)``; traceable, for run-time checks of values set
-    under a trace): ``mass > 0``, a symmetric tensor, principal moments ``>= 0`` meeting the triangle inequalities.
-    Without an eigendecomposition: the moments meet ``0 <= I_k <= I_i + I_j`` exactly when ``Sigma = tr(I)/2 1 - I``
-    (the mass's second moment about its centre, with eigenvalues ``(I_i + I_j - I_k) / 2``) is positive
-    semi-definite, i.e. its principal minors are non-negative; each is allowed :data:`PHYSICAL_RTOL` of the
-    tensor's scale (to its power) below zero. False for non-finite values."""
+    """Whether ``(mass, inertia about the centre of mass)`` is physical by :func:`check_inertia`'s conditions with
+    ``degenerate_ok`` and its tolerances (shapes ``(...)`` and ``(..., 3, 3)``; traceable, for run-time checks of
+    values set under a trace): ``mass > 0``, a symmetric tensor, principal moments ``>= 0`` meeting the triangle
+    inequalities ``I_k <= I_i + I_j``, each within :data:`PHYSICAL_RTOL` of the tensor's scale. False for non-finite
+    values. (Its verdict only: no derivative passes through it.)"""
     m = jnp.asarray(mass)
-    i = jnp.asarray(inertia)
+    i = jax.lax.stop_gradient(jnp.asarray(inertia))
+    m = jax.lax.stop_gradient(m)
     tr = jnp.trace(i, axis1=-2, axis2=-1)
     scale = jnp.maximum(jnp.maximum(tr, m * POINT_RADIUS**2), np.finfo(float).tiny)
     tol = PHYSICAL_RTOL * scale
+    finite = jnp.isfinite(m) & jnp.all(jnp.isfinite(i), axis=(-2, -1))
     sym = 0.5 * (i + jnp.swapaxes(i, -1, -2))
-    sig = 0.5 * tr[..., None, None] * jnp.broadcast_to(jnp.eye(3, dtype=sym.dtype), sym.shape) - sym
-    d = jnp.diagonal(sig, axis1=-2, axis2=-1)
-    minors = jnp.stack([d[..., a] * d[..., b] - sig[..., a, b] ** 2 for a, b in ((0, 1), (0, 2), (1, 2))], -1)
-    return ((m > 0.0) & jnp.all(jnp.abs(i - sym) <= tol[..., None, None], axis=(-2, -1))
-            & jnp.all(d >= -tol[..., None], axis=-1) & jnp.all(minors >= -(tol * scale)[..., None], axis=-1)
-            & (jnp.linalg.det(sig) >= -tol * scale**2))
+    eig = jnp.linalg.eigvalsh(jnp.where(finite[..., None, None], sym, 0.0))  # ascending
+    others = jnp.sum(eig, axis=-1, keepdims=True) - eig
+    return (finite & (m > 0.0) & jnp.all(jnp.abs(i - jnp.swapaxes(i, -1, -2)) <= tol[..., None, None], axis=(-2, -1))
+            & (eig[..., 0] >= -tol) & jnp.all(eig <= others + tol[..., None], axis=-1))
 
 
 def balance_inertia(inertia) -> tuple[np.ndarray, bool]:

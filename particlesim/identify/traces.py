@@ -67,7 +67,9 @@ def trace_model(mech, q0, ts, params: Mapping[str, tuple], observe: Callable, *,
     ``params``: the free constants, ``{label: (group, element, field)}``; the others keep the mechanism's values.
     ``observe(mech, q)``: the measured quantity at particle positions ``q`` (any shape; the mechanism passed is
     the one with the run's constants). ``runs``: one mapping per run, ``{(group, element, field): known change}``
-    added to that constant (fitted or not), e.g. ``[{}, {("body", "chassis", "mass"): 100.0}]``. ``solver``,
+    added to that constant (fitted or not), e.g. ``[{}, {("body", "chassis", "mass"): 100.0}]``; a negative change
+    that makes a constant non-physical for some trial value (a mass removed beyond the fitted one) stops the fit with
+    :func:`~particlesim.mechanism.simulate_mechanism`'s run-time error naming it. ``solver``,
     ``rtol``, ``atol``, ``events``, ``stabilise`` as in :func:`~particlesim.mechanism.simulate_mechanism` (the
     defaults suit a few seconds of a smooth response measured to ~1e-6; a mechanism with tyres that lift off
     needs ``events=True`` for exact derivatives).

@@ -32,7 +32,7 @@ import numpy as np
 from .. import _ode
 from .._ode import ADJOINTS, Solution
 from ..errors import ModelError
-from ..inertia import physical_inertia
+from ..inertia import check_inertia, physical_inertia
 from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_project
 from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian, prepare, residual, rows,
                        schur, schur_solve, solve_schur, velocity_target)
@@ -149,6 +149,23 @@ def physical_checks(mech: Mechanism, entry: str = "simulate_mechanism") -> tuple
     if not flags:
         return None
     return jnp.concatenate(flags), msgs
+
+
+def physical_checks_eager(mech: Mechanism, entry: str = "simulate_mechanism") -> None:
+    """:func:`physical_checks` on concrete values, raising :class:`~particlesim.errors.ModelError` (a body's by
+    :func:`~particlesim.inertia.check_inertia`, an :class:`~particlesim.errors.InertiaError`) before any run."""
+    topo = mech.topo
+    masses, coms, inertias = (np.asarray(x) for x in (mech.body_mass, mech.body_com, mech.body_inertia))
+    for b, name in enumerate(topo.body_names):
+        check_inertia(masses[b], coms[b], inertias[b], f"{entry}: body {name!r}", degenerate_ok=True)
+    for prefix, names, fields in (("spring", topo.spring_names, ("stiffness", "damping", "free_length")),
+                                  ("tyre", topo.tyre_names, ("stiffness", "damping", "radius")),
+                                  ("rotational", topo.rotational_names, ("stiffness", "damping"))):
+        for f in fields:
+            values = np.asarray(getattr(mech, f"{prefix}_{f}"))
+            for n, v in zip(names, values):
+                if not v >= 0.0:
+                    raise ModelError(f"{entry}: {prefix} '{n}' {f.replace('_', ' ')} must be non-negative, got {v!r}")
 
 
 def _merge_checks(*checks):
@@ -326,9 +343,11 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
     or is reported in ``Solution.status`` with NaN states (``throw=False``).
 
     Raises ``ValueError`` for unknown names, bad tolerances or times, a non-finite initial state; ``ModelError``
-    for wrong state shapes or non-finite mechanism parameters (at run time under jit); at run time, non-physical
-    parameter values that were not checked when set (traced values given to ``with_params``, leaves set by
-    ``eqx.tree_at``: :func:`physical_checks`); the error names the offending parameter.
+    for wrong state shapes, non-finite parameters and non-physical ones (a non-positive mass, an inertia breaking
+    the triangle inequality, a negative stiffness...: values ``with_params`` did not check, such as leaves set by
+    ``eqx.tree_at``); the error names the offending parameter. Values traced in a caller's ``jit``, ``vmap`` or
+    ``grad`` are checked when the program runs (:func:`physical_checks`), raising JAX's run-time error
+    (``jax.errors.JaxRuntimeError``) with the same message.
     """
     cfg = _ode.settings(solver=solver, adjoint=adjoint, max_steps=max_steps, throw=throw, progress=progress,
                         pid=pid, save_ts=saveat_ts is not None)
@@ -357,7 +376,8 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
                          f"got {q0.shape} and {qd0.shape}")
     _ode.check_state((q0, qd0), ("q0", "qd0"))
     t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
-    _ode.check_finite_eager("simulate_mechanism", mech, lambda: parameter_groups(mech))  # concrete values
+    _ode.check_finite_eager("simulate_mechanism", mech, lambda: parameter_groups(mech),  # concrete values
+                            lambda: physical_checks_eager(mech))
     if len(mech.topo.drive):
         _check_driven_start(mech, q0, qd0, t0)
     warn = not evented and bool(mech.topo.tyre_names) and _ode.differentiated((mech, q0, qd0))

@@ -82,7 +82,9 @@ def _children(parents: tuple) -> np.ndarray:
 UNROLL_LINKS = 32
 
 
-#: A batch of states of a deep tree (written-out sweeps, more than :data:`SHALLOW_DEPTH` links from root to tip) runs
+#: (Measured on Krang before it took the shallow rule below; among deeper trees only chains of 18 and 25 links were
+#: measured against chunks of about 128 states.) A batch of states of a deep tree (written-out sweeps, more than
+#: :data:`SHALLOW_DEPTH` links from root to tip) runs
 #: the sweeps on chunks of about this many states, one chunk after another, once it is larger than
 #: :data:`BATCH_CHUNK_ABOVE` (:func:`batch_chunks`). A link's articulated inertias for 1024 states take 295 kB,
 #: within a core's L2 cache on the CPUs measured; the whole batch at once costs more per state as it grows (Krang on
@@ -93,15 +95,15 @@ BATCH_CHUNK = 1024
 #: Batches up to this size run whole (their chunks would fall to about 700 states).
 BATCH_CHUNK_ABOVE = 1408
 #: Shallow trees (at most :data:`SHALLOW_DEPTH` links from the root to any tip) run a batch in chunks of about
-#: :data:`SHALLOW_CHUNK` states instead (136 lanes for 1024 states: :func:`batch_lanes`), so that the three
-#: sweeps work on one chunk's link quantities at a time (about 1.5 MB, near a core's 1 MB L2 cache here; 1024
-#: states' take about 12 MB). Measured in one process per
-#: tree, one core, interleaved, median per state against the whole batch: Krang (18 links, depth 10) 0.83-0.85x at
-#: 1024 states for chunks of 114-147 states (0.91 of 103, 1.0 of 64-72 or 256), 0.79x at 705 and 2048, 0.72x at
-#: 300, 0.99x at 192; serial chains of 7 and 12 links 0.69x and 0.80x at 1024; chains of 18 and 25 links 1.08x and
-#: 1.26x (slower, why not established: the bound on the depth). Compiled with
-#: :data:`particlesim._xla.BATCH_OPTIONS` (not wide): Krang's
-#: 1024 states 5.26 against 5.55 us per state with the wide options, compile 7.6 against 12.9 s.
+#: :data:`SHALLOW_CHUNK` states instead (136 lanes for 1024 states: :func:`batch_lanes`), so that the three sweeps
+#: work on one chunk's link quantities at a time (estimated 1.5 MB, near a core's 1 MB L2 cache here, against 12 MB
+#: for 1024 states; that this is the reason is a hypothesis). Measured in one process per tree, one core,
+#: interleaved, median per state against the previous rule (the whole batch up to 1408 states, chunks of about 1024
+#: beyond; at 2048 states two of them): Krang (18 links, depth 10) 0.83-0.85x at 1024 states for chunks of 114-147
+#: states (0.91 of 103, 1.0 of 64-72 or 256), 0.79x at 705 and 2048, 0.72x at 300, 0.99x at 192; serial chains of 7
+#: and 12 links 0.69x and 0.80x at 1024; chains of 18 and 25 links 1.08x and 1.26x (slower, why not established: the
+#: bound on the depth). Compiled with :data:`particlesim._xla.BATCH_OPTIONS` (not wide): Krang's 1024 states 5.26
+#: against 5.55 us per state with the wide options, compile 7.6 against 12.9 s.
 SHALLOW_DEPTH = 12
 SHALLOW_CHUNK = 128
 #: Chunks of at least this many states (of a tree up to :data:`UNROLL_LINKS` links: the whole batch or every chunk

@@ -142,10 +142,11 @@ def test_parameters_by_name_are_checked_as_the_builder_checks_them(four_bar):
 
 
 def test_non_physical_values_set_under_a_trace_are_refused_at_run_time(four_bar):
-    """Values ``with_params`` cannot check (traced) or that bypass it (``eqx.tree_at``) are refused by
-    ``simulate_mechanism`` when it runs, naming the body or element: a negative mass, a tensor breaking the triangle
-    inequality, a negative damping; NaN is reported as not finite. A physical traced change runs, equal to the same
-    change made concretely."""
+    """Values ``with_params`` cannot check (traced) are refused by ``simulate_mechanism`` when it runs (JAX's
+    run-time error), naming the body or element: a negative mass, a tensor breaking the triangle inequality, a
+    negative damping; NaN is reported as not finite. Concrete values that bypass ``with_params`` (``eqx.tree_at``)
+    are refused before the run with ``ModelError``. A physical traced change runs, equal to the same change made
+    concretely (to round-off: the one is compiled inside the caller's jit, the other at top level)."""
     import equinox as eqx
     import jax
     import jax.numpy as jnp
@@ -169,35 +170,41 @@ def test_non_physical_values_set_under_a_trace_are_refused_at_run_time(four_bar)
              (lambda v: mech.with_params(body={"coupler": {"mass": v}}), jnp.nan,
               "parameter body 'coupler' mass is not finite"))
     for set_value, value, match in cases:
-        with pytest.raises(Exception, match=match):
+        with pytest.raises(jax.errors.JaxRuntimeError, match=match):
             jax.block_until_ready(jax.jit(lambda v: final(set_value(v)))(jnp.asarray(value)))
     bypass = eqx.tree_at(lambda m: m.body_mass, mech, mech.body_mass.at[b].set(-2.0))
-    with pytest.raises(Exception, match="body 'coupler' is not physical"):
-        jax.block_until_ready(final(bypass))
+    with pytest.raises(ModelError, match="simulate_mechanism: body 'coupler': mass must be positive"):
+        final(bypass)
+    loose = eqx.tree_at(lambda m: m.spring_stiffness, mech, -mech.spring_stiffness)
+    with pytest.raises(ModelError, match="simulate_mechanism: spring 'spring' stiffness must be non-negative"):
+        final(loose)
     traced = jax.jit(lambda v: final(mech.with_params(body={"coupler": {"mass": v}})))(jnp.asarray(2.5))
     concrete = final(mech.with_params(body={"coupler": {"mass": 2.5}}))
-    assert np.array_equal(np.asarray(traced), np.asarray(concrete))
+    np.testing.assert_allclose(np.asarray(traced), np.asarray(concrete), rtol=0.0, atol=1e-12)
 
 
 def test_physical_inertia_agrees_with_check_inertia():
-    """The run-time test (principal minors of the second moment, no eigendecomposition) against the eager
-    ``check_inertia(degenerate_ok=True)`` (eigenvalues) on rotated tensors: physical ones, rods and planar bodies
-    (a zero moment, a triangle equality), a negative moment, triangle inequalities broken by 1e-6 and by 1 %, a
-    non-symmetric tensor, and non-positive or NaN masses."""
+    """The run-time test (traceable) against the eager ``check_inertia(degenerate_ok=True)`` on rotated tensors:
+    physical ones, rods and planar bodies (a zero moment, a triangle equality), a negative moment, triangle
+    inequalities broken by 1 %, by 1e-6 and by 2e-7 (100 times the tolerance), a thin rod broken by 2e-6 (Sigma's
+    eigenvalues -1e-6, 1e-5, 1), tensors skewed by 1e-3 and by 1.5 times the tolerance, and non-positive or NaN
+    masses."""
     import jax.numpy as jnp
 
-    from particlesim.inertia import InertiaError, check_inertia, physical_inertia
+    from particlesim.inertia import PHYSICAL_RTOL, InertiaError, check_inertia, physical_inertia
 
     rng = np.random.default_rng(21)
     moments = [(1.0, 2.0, 2.5), (0.0, 1.0, 1.0), (1.0, 2.0, 3.0), (0.3, 0.3, 0.6), (-0.1, 1.0, 1.0),
-               (1.0, 2.0, 3.0 + 1e-6), (1.0, 2.0, 3.03), (4.0, 1.0, 1.0), (1e-3, 2e-3, 2.5e-3), (5.0, 5.0, 5.0)]
+               (1.0, 2.0, 3.0 + 1e-6), (1.0, 2.0, 3.03), (4.0, 1.0, 1.0), (1e-3, 2e-3, 2.5e-3), (5.0, 5.0, 5.0),
+               (1.0, 2.0, 3.0 + 2e-7), (1.00001, 0.999999, 9e-6)]
     cases = []
     for mom in moments:
         r = np.linalg.qr(rng.normal(size=(3, 3)))[0]  # a random orthogonal matrix
         cases.append((1.5, r @ np.diag(mom) @ r.T))
-    skew = np.diag([1.0, 2.0, 2.5])
+    skew, slightly = np.diag([1.0, 2.0, 2.5]), np.diag([1.0, 2.0, 2.5])
     skew[0, 1] += 1e-3
-    cases += [(1.5, skew), (0.0, np.diag([1.0, 2.0, 2.5])), (-1.0, np.diag([1.0, 2.0, 2.5])),
+    slightly[0, 1] += 1.5 * PHYSICAL_RTOL * 5.5
+    cases += [(1.5, skew), (1.5, slightly), (0.0, np.diag([1.0, 2.0, 2.5])), (-1.0, np.diag([1.0, 2.0, 2.5])),
               (np.nan, np.diag([1.0, 2.0, 2.5]))]
     verdicts = np.asarray(physical_inertia(jnp.asarray([m for m, _ in cases]), jnp.asarray([i for _, i in cases])))
     expected = []
@@ -208,4 +215,5 @@ def test_physical_inertia_agrees_with_check_inertia():
         except InertiaError:
             expected.append(False)
     assert verdicts.tolist() == expected
-    assert expected == [True, True, True, True, False, False, False, False, True, True, False, False, False, False]
+    assert expected == [True, True, True, True, False, False, False, False, True, True, False, False,
+                        False, False, False, False, False]

@@ -459,15 +459,18 @@ def test_wide_batches_take_the_wide_entry(tiny_tree, monkeypatch):
         cpu_options(batch="Wide")
 
 
-def test_wide_batches_of_models_outside_the_sweeps_stay_on_the_batch_entry():
-    """A floating-base model (no sweeps) evaluates even a wide batch state by state through the batch entry."""
+def test_wide_batches_of_models_outside_the_sweeps_stay_on_the_batch_entry(monkeypatch):
+    """A floating-base model (no sweeps) evaluates even a wide batch state by state through the batch entry (the
+    tree treated as deep, so that its batch would otherwise be wide)."""
     from particlesim.tree import aba as aba_module, dynamics
 
+    monkeypatch.setattr(aba_module, "SHALLOW_DEPTH", 0)
     urdf = random_tree_urdf(4, 2).replace('<link name="base"/>', '<link name="base"><inertial><mass value="2"/>'
                                           '<inertia ixx="0.1" ixy="0" ixz="0" iyy="0.2" iyz="0" izz="0.15"/>'
                                           '</inertial></link>')
     model = load_urdf(urdf, floating_base=True, limits="ignore")
-    assert not supports_aba(model) and aba_module.wide_batch(aba_module.WIDE_BATCH, model.n_joints)
+    assert not supports_aba(model)
+    assert aba_module.wide_batch(aba_module.WIDE_BATCH, model.n_joints, aba_module.tree_depth(model.parents))
     q = jnp.tile(jnp.concatenate([jnp.zeros(3), jnp.array([0.0, 0.0, 0.0, 1.0]), jnp.zeros(model.nq - 7)]),
                  (aba_module.WIDE_BATCH, 1))
     v = jnp.zeros((aba_module.WIDE_BATCH, model.nv))
