@@ -278,9 +278,10 @@ def check_finite(entry: str, groups) -> tuple | None:
 _PASSED: dict = {}
 
 
-def check_finite_eager(entry: str, model, groups: Callable[[], list], more: Callable[[], None] | None = None) -> None:
+def check_finite_eager(entry: str, model, groups: Callable[[], list], more: Callable[[], None] | None = None) -> bool:
     """The eager :func:`check_finite` of a public entry point, ``groups()`` giving the model's ``(label, array)``
-    pairs, then ``more()`` (further eager checks that raise, or None) when every leaf is concrete. A model whose
+    pairs, then ``more()`` (further eager checks that raise, or None) when every leaf is concrete; returns whether
+    every leaf was concrete (so that ``more``'s checks were made and the program need not repeat them). A model whose
     array leaves are all concrete JAX arrays (immutable) is checked once and remembered while
     it lives, with its leaves: a later call with the same object and the very same leaves (a container inside it,
     such as a dict, may have been changed in place) skips the check. Labelling and checking every parameter costs
@@ -290,9 +291,10 @@ def check_finite_eager(entry: str, model, groups: Callable[[], list], more: Call
     seen = _PASSED.get(id(model))
     if seen is not None and seen[0]() is model and len(seen[1]) == len(leaves) and all(
             a is b for a, b in zip(leaves, seen[1])):
-        return
+        return True
     check_finite(entry, groups())
-    if more is not None and all(_concrete(leaf) for leaf in leaves):
+    concrete = all(_concrete(leaf) for leaf in leaves)
+    if more is not None and concrete:
         more()
     if all(type(leaf) is _ArrayImpl or not isinstance(leaf, (np.ndarray, jax.Array, jax.core.Tracer))
            for leaf in leaves):
@@ -300,8 +302,9 @@ def check_finite_eager(entry: str, model, groups: Callable[[], list], more: Call
         try:
             ref = weakref.ref(model, lambda _, key=key: _PASSED.pop(key, None))
         except TypeError:  # not weakly referenceable: checked every call
-            return
+            return concrete
         _PASSED[key] = (ref, tuple(leaves))
+    return concrete
 
 
 def leaf_groups(params: Any) -> list[tuple[str, Array]]:
