@@ -38,7 +38,7 @@ from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur,
                        schur, schur_solve, solve_schur, velocity_target)
 from .dynamics import _solve
 from .forces import tyre_deflections
-from .model import Mechanism
+from .model import NON_NEGATIVE, Mechanism
 from .._jit import compiled
 
 __all__ = ["ADJOINTS", "project", "simulate_mechanism", "SwitchCrossedWarning"]
@@ -137,11 +137,10 @@ def physical_checks(mech: Mechanism, entry: str = "simulate_mechanism") -> tuple
         flags.append(~ok)
         msgs += [f"{entry}: body '{n}' is not physical: its mass must be positive and its inertia about the centre "
                  "of mass symmetric, positive semi-definite, with principal moments meeting the triangle inequality "
-                 "(a value set under a trace, or by eqx.tree_at, which are not checked when set)"
+                 "(a value set under a trace, which is not checked when set)"
                  for n in topo.body_names]
-    for prefix, names, fields in (("spring", topo.spring_names, ("stiffness", "damping", "free_length")),
-                                  ("tyre", topo.tyre_names, ("stiffness", "damping", "radius")),
-                                  ("rotational", topo.rotational_names, ("stiffness", "damping"))):
+    for prefix, fields in NON_NEGATIVE.items():
+        names = getattr(topo, f"{prefix}_names")
         for f in fields:
             if names:
                 flags.append(~(getattr(mech, f"{prefix}_{f}") >= 0.0))
@@ -158,12 +157,10 @@ def physical_checks_eager(mech: Mechanism, entry: str = "simulate_mechanism") ->
     masses, coms, inertias = (np.asarray(x) for x in (mech.body_mass, mech.body_com, mech.body_inertia))
     for b, name in enumerate(topo.body_names):
         check_inertia(masses[b], coms[b], inertias[b], f"{entry}: body {name!r}", degenerate_ok=True)
-    for prefix, names, fields in (("spring", topo.spring_names, ("stiffness", "damping", "free_length")),
-                                  ("tyre", topo.tyre_names, ("stiffness", "damping", "radius")),
-                                  ("rotational", topo.rotational_names, ("stiffness", "damping"))):
+    for prefix, fields in NON_NEGATIVE.items():
         for f in fields:
             values = np.asarray(getattr(mech, f"{prefix}_{f}"))
-            for n, v in zip(names, values):
+            for n, v in zip(getattr(topo, f"{prefix}_names"), values):
                 if not v >= 0.0:
                     raise ModelError(f"{entry}: {prefix} '{n}' {f.replace('_', ' ')} must be non-negative, got {v!r}")
 

@@ -45,7 +45,13 @@ from ..errors import ModelError
 from ..inertia import _is_concrete, check_inertia
 
 __all__ = ["Mechanism", "Topology", "DotRows", "LinearRows", "DriveRows", "AppliedForce", "AppliedTorque",
-           "BodyLoad", "BodyState"]
+           "BodyLoad", "BodyState", "NON_NEGATIVE"]
+
+#: The force elements' parameters that must be non-negative, by kind (``Topology.<kind>_names``, ``Mechanism.<kind>_
+#: <field>``): checked by :meth:`Mechanism.with_params` on concrete values and by the simulation (the builder refuses
+#: negative ones itself).
+NON_NEGATIVE = {"spring": ("stiffness", "damping", "free_length"), "tyre": ("stiffness", "damping", "radius"),
+                "rotational": ("stiffness", "damping")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -360,7 +366,8 @@ class Mechanism(eqx.Module):
             if np.shape(value) != arr.shape[1:]:
                 raise ModelError(f"with_params: {label} must have shape {arr.shape[1:]}, got {np.shape(value)}")
             value = jnp.asarray(value, dtype=arr.dtype)
-            if field.split("_", 1)[1] in ("stiffness", "damping", "free_length", "radius") and _is_concrete(value) \
+            kind, name = field.split("_", 1)
+            if name in NON_NEGATIVE.get(kind, ()) and _is_concrete(value) \
                     and not (np.isfinite(float(value)) and float(value) >= 0.0):
                 raise ModelError(f"with_params: {label} must be finite and non-negative, got {float(value)!r}")
             new[field] = arr.at[i].set(value)

@@ -498,16 +498,14 @@ class TreeModel(eqx.Module):
         positive semi-definite tensor within the triangle inequalities), array leaves are not (every entry refuses
         non-finite ones). Unknown leaves, links or fields, and a leaf of another shape than the model's, raise
         :class:`ModelError`."""
-        leaves = ("inertia", "origin_xyz", "gravity", "viscous", "coulomb", "rotor_inertia", "stiffness", "spring_ref",
-                  "limits")
+        n = self.n_joints  # the parameter leaves, each with one model's shape (behind leading axes of stacked models)
+        shapes = {"inertia": (n, 10), "origin_xyz": (n, 3), "gravity": (3,), "viscous": (n,), "coulomb": (n,),
+                  "rotor_inertia": (n,), "stiffness": (self.nv,), "spring_ref": (self.nq,), "limits": (self.nv, 4)}
         for k, v in changes.items():
-            if k not in leaves:
-                raise ModelError(f"with_params: {k!r} is not a parameter leaf (one of {leaves})")
-            # one model's shape of the leaf, behind any leading axes of stacked models (static under a trace too)
-            n = self.n_joints
-            want = {"inertia": (n, 10), "origin_xyz": (n, 3), "gravity": (3,), "viscous": (n,), "coulomb": (n,),
-                    "rotor_inertia": (n,), "stiffness": (self.nv,), "spring_ref": (self.nq,), "limits": (self.nv, 4)}[k]
-            got = jnp.shape(v)
+            if k not in shapes:
+                raise ModelError(f"with_params: {k!r} is not a parameter leaf (one of {tuple(shapes)})")
+            want = shapes[k]
+            got = np.shape(v)  # static under a trace too
             if got[len(got) - len(want):] != want:
                 raise ModelError(f"with_params: {k} must have shape {want} for this model (with any leading axes of "
                                  f"stacked models), got {got}")
