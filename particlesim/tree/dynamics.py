@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple, Optional
 
 import jax
@@ -25,8 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .aba import (aba, aba_one_state, batch_chunks, batch_lanes, one_state_sweeps, state_by_state, supports_aba,
-                  tree_depth, wide_batch)
+from .aba import (aba, aba_one_state, batch_chunks, batch_lanes, batch_parts, one_state_sweeps, state_by_state,
+                  supports_aba, tree_depth, wide_batch)
 from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
@@ -289,8 +291,10 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     as the innermost axis of every operation, several times faster per state than ``jax.vmap`` of the one-state
     call. A batch of at most one state per link of a tree up to :data:`~.aba.UNROLL_LINKS` links, passed from
     Python, runs state by state (:func:`~.aba.state_by_state`: the sweeps' fixed cost is not repaid by a few states);
-    inside a caller's trace (``jit``, ``vmap``, ``grad``) a batch always takes the sweeps. Pass batches directly
-    rather than vmapping; models with mimic, free or ball joints evaluate a batch state by state.
+    inside a caller's trace (``jit``, ``vmap``, ``grad``) a batch always takes the sweeps. A larger batch passed from
+    Python is split into one part per usable core, each run on its own thread (:func:`~.aba.batch_parts`; set
+    ``particlesim.tree.aba.BATCH_THREADS = 1`` for one program). Pass batches directly rather than vmapping; models
+    with mimic, free or ball joints evaluate a batch state by state.
 
     External wrenches enter through ``tau``: add :func:`~.kinematics.wrench_torques` (``J^T f``, eq. 16).
     ``smooth_friction=eps`` replaces ``sign(qd)`` by ``tanh(qd / eps)`` (differentiable at ``qd = 0``).
@@ -319,10 +323,15 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     # the sweeps stay, since an outer jax.vmap (over the states or only over parameters, the states captured) would
     # turn the loop into a loop of vmapped one-state programs (64 parameter sets of 8 Krang states: 11.4 ms against
     # 6.5 ms for the sweeps, one core).
-    size = math.prod(q.shape[:-1])
-    by_state = (type(q) is _ArrayImpl and type(qd) is _ArrayImpl and type(tau) is _ArrayImpl
-                and state_by_state(size, model.n_joints) and top_level())
-    wide = wide_batch(size, model.n_joints, tree_depth(model.parents)) and supports_aba(model)
+    size, links = math.prod(q.shape[:-1]), model.n_joints
+    concrete = type(q) is _ArrayImpl and type(qd) is _ArrayImpl and type(tau) is _ArrayImpl and top_level()
+    by_state = concrete and state_by_state(size, links)
+    depth = tree_depth(model.parents)
+    if concrete and not by_state:
+        parts = batch_parts(size, links)
+        if parts > 1:  # a part per core, each on its own thread
+            return _in_parts(model, q, qd, tau, smooth_friction, size, parts, depth)
+    wide = wide_batch(size, links, depth) and supports_aba(model)
     entry = _batched_wide if wide else _batched  # the same program; other XLA options for wide batches
     return entry(model, q, qd, tau, smooth_friction, by_state)
 
@@ -370,6 +379,68 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction, by_state=False):
     else:
         out = jax.lax.map(lambda x: aba(model, *x), chunked)  # (k, n, lanes), chunk after chunk
     return out.transpose(0, 2, 1).reshape(k * lanes, -1)[:size].reshape(batch + (n,))
+
+
+def _in_parts(model: TreeModel, q, qd, tau, smooth_friction, size: int, parts: int, depth: int):
+    """A concrete batch in ``parts`` equal parts of ``count`` states, each run by one compiled program
+    (:func:`_batched_part`) on its own thread: this one and ``parts - 1`` of :func:`_pool`'s. The parts start at
+    ``i * count``, the last at ``size - count`` (it overlaps its neighbour when ``parts`` does not divide ``size``;
+    :func:`_join` drops the repeated states). The first part is dispatched here before the others are handed over,
+    so that a first call compiles once."""
+    count = -(-size // parts)
+    wide = wide_batch(count, model.n_joints, depth) and supports_aba(model)
+    entry = _batched_part_wide if wide else _batched_part
+    starts = [min(i * count, size - count) for i in range(parts)]
+    first = entry(model, q, qd, tau, _offset(starts[0]), smooth_friction, count)
+    rest = [_pool(parts - 1).submit(_run, entry, model, q, qd, tau, _offset(s), smooth_friction, count)
+            for s in starts[1:]]
+    outs = (first, *(f.result() for f in rest))
+    return _join(outs, parts * count - size, q.shape[:-1])
+
+
+def _run(entry, *args):
+    """One part, on a pool thread: dispatched and waited for there (a part only dispatched from a pool thread and
+    waited for by the caller ran 10-20 % slower)."""
+    return jax.block_until_ready(entry(*args))
+
+
+_pools: dict[int, ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+
+
+def _pool(workers: int) -> ThreadPoolExecutor:
+    """A pool of ``workers`` threads, made on first use and kept (a thread's start costs ~50 us)."""
+    pool = _pools.get(workers)
+    if pool is None:
+        with _pools_lock:
+            pool = _pools.setdefault(workers, ThreadPoolExecutor(workers, thread_name_prefix="particlesim-batch"))
+    return pool
+
+
+@functools.lru_cache(maxsize=256)
+def _offset(start: int):
+    """A part's first state as a device scalar (kept: making one costs ~10 us)."""
+    return jnp.asarray(start, dtype=jnp.int32)
+
+
+@functools.partial(jax.jit, static_argnames=("repeated", "batch"))
+def _join(outs, repeated: int, batch: tuple):
+    """The parts' results as one batch of shape ``batch + (n,)``, the last part's first ``repeated`` states (also in
+    the part before it) dropped."""
+    outs = (*outs[:-1], outs[-1][repeated:])
+    return jnp.concatenate(outs).reshape(batch + outs[0].shape[-1:])
+
+
+@compiled("forward_dynamics batch part", static=("smooth_friction", "count"), arrays_only=True, batch=True)
+def _batched_part(model: TreeModel, q, qd, tau, start, smooth_friction, count):
+    """States ``start .. start + count`` of a batch (flattened over its batch axes), as :func:`_batched` evaluates
+    them; ``start`` is traced, so that every part of a batch shares one program."""
+    part = tuple(jax.lax.dynamic_slice_in_dim(x.reshape(-1, x.shape[-1]), start, count) for x in (q, qd, tau))
+    return _batched.raw(model, *part, smooth_friction)
+
+
+_batched_part_wide = compiled("forward_dynamics wide batch part", static=("smooth_friction", "count"),
+                              arrays_only=True, batch="wide")(_batched_part.raw)
 
 
 #: The batch entry for wide batches (:func:`~.aba.wide_batch`): the same program compiled with XLA's fusion emitters

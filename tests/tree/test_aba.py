@@ -298,6 +298,7 @@ def test_a_batch_compiles_once_per_structure(small_tree, states, monkeypatch):
     from particlesim import _ode
     from particlesim.tree import aba as aba_module
 
+    monkeypatch.setattr(aba_module, "BATCH_THREADS", 1)  # one program (parts: test_batches_split_over_threads)
     if states >= aba_module.WIDE_BATCH:
         monkeypatch.setattr(aba_module, "SHALLOW_DEPTH", 0)
     wide = aba_module.wide_batch(states, small_tree.n_joints, aba_module.tree_depth(small_tree.parents))
@@ -433,6 +434,7 @@ def test_wide_batches_take_the_wide_entry(tiny_tree, monkeypatch):
     from particlesim.tree import aba as aba_module, dynamics
 
     monkeypatch.setattr(aba_module, "SHALLOW_DEPTH", 0)
+    monkeypatch.setattr(aba_module, "BATCH_THREADS", 1)  # one program (parts go through _batched_part)
     n = tiny_tree.n_joints
     wide = aba_module.WIDE_BATCH
     assert [aba_module.wide_batch(s, n) for s in (wide - 1, wide, 4096)] == [False, True, True]
@@ -465,6 +467,7 @@ def test_wide_batches_of_models_outside_the_sweeps_stay_on_the_batch_entry(monke
     from particlesim.tree import aba as aba_module, dynamics
 
     monkeypatch.setattr(aba_module, "SHALLOW_DEPTH", 0)
+    monkeypatch.setattr(aba_module, "BATCH_THREADS", 1)
     urdf = random_tree_urdf(4, 2).replace('<link name="base"/>', '<link name="base"><inertial><mass value="2"/>'
                                           '<inertia ixx="0.1" ixy="0" ixz="0" iyy="0.2" iyz="0" izz="0.15"/>'
                                           '</inertial></link>')
@@ -481,3 +484,72 @@ def test_wide_batches_of_models_outside_the_sweeps_stay_on_the_batch_entry(monke
         forward_dynamics(model, q, v, v)
     assert chosen == ["_batched"]
 
+
+
+def test_batch_parts_by_cores_and_work(monkeypatch):
+    """One part per usable core, as far as each part keeps PART_LINK_STATES link-states; BATCH_THREADS overrides the
+    core count (1: one program)."""
+    from particlesim.tree import aba as aba_module
+
+    per = aba_module.PART_LINK_STATES
+    monkeypatch.setattr(aba_module, "usable_cores", lambda: 2)
+    assert [aba_module.batch_parts(s, 18) for s in (0, 1, 2 * per // 18 - 1, 2 * per // 18 + 1, 1024)] \
+        == [1, 1, 1, 2, 2]
+    monkeypatch.setattr(aba_module, "usable_cores", lambda: 1)
+    assert aba_module.batch_parts(4096, 18) == 1
+    monkeypatch.setattr(aba_module, "BATCH_THREADS", 3)
+    assert [aba_module.batch_parts(s, 200) for s in (10, 20, 31, 4096)] == [1, 1, 3, 3]
+    assert aba_module.usable_cores() >= 1
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_batches_split_over_threads(small_tree, threads, monkeypatch):
+    """A batch passed from Python runs in parts on as many threads (the parts' program on this one and on pool
+    threads): 70 states over leading axes (2, 35), broadcast from ``qd`` of shape (35, n), in 2 parts of 35 or 3 of
+    24 (the last starting at state 46, its first two states dropped). The same values as one program and as state by
+    state, the batch's shape kept; the parts' program traced once, also for new states and parameter values; inside a
+    caller's trace the batch is one program."""
+    from particlesim import _ode
+    from particlesim.tree import aba as aba_module, dynamics
+
+    monkeypatch.setattr(aba_module, "PART_LINK_STATES", 1)
+    n = small_tree.nq
+    rng = np.random.default_rng(21)
+    q, tau = (jnp.asarray(rng.normal(size=(2, 35, n))) for _ in range(2))
+    qd = jnp.asarray(rng.normal(size=(35, n)))
+    monkeypatch.setattr(aba_module, "BATCH_THREADS", 1)
+    whole = forward_dynamics(small_tree, q, qd, tau, smooth_friction=0.1)
+    monkeypatch.setattr(aba_module, "BATCH_THREADS", threads)
+    assert aba_module.batch_parts(70, small_tree.n_joints) == threads
+    ran = []
+    real_run = dynamics._run
+
+    def spy(entry, *args):
+        import threading
+
+        ran.append((threading.current_thread().name, args[4].item()))
+        return real_run(entry, *args)
+
+    monkeypatch.setattr(dynamics, "_run", spy)
+    name = "forward_dynamics batch part"
+    before = _ode.TRACES[name]
+    out = forward_dynamics(small_tree, q, qd, tau, smooth_friction=0.1)
+    assert out.shape == (2, 35, n)
+    count = -(-70 // threads)
+    assert sorted(s for _, s in ran) == [min(i * count, 70 - count) for i in range(1, threads)]
+    assert all(t.startswith("particlesim-batch") for t, _ in ran)
+    assert max_rel(out, whole) <= SAME_RTOL
+
+    def by_state(model):
+        fd = jax.vmap(lambda a, b, c: forward_dynamics(model, a, b, c, smooth_friction=0.1))
+        return jax.jit(jax.vmap(fd, in_axes=(0, None, 0)))
+
+    assert max_rel(out, by_state(small_tree)(q, qd, tau)) <= SAME_RTOL
+    assert _ode.TRACES[name] - before == 1
+    heavier = small_tree.with_params(inertia=small_tree.inertia * 1.3)
+    out2 = forward_dynamics(heavier, q + 0.1, qd, tau, smooth_friction=0.1)
+    assert _ode.TRACES[name] - before == 1
+    assert max_rel(out2, by_state(heavier)(q + 0.1, qd, tau)) <= SAME_RTOL
+    ran.clear()
+    inside = jax.jit(lambda a, b, c: forward_dynamics(small_tree, a, b, c, smooth_friction=0.1))(q, qd, tau)
+    assert not ran and max_rel(inside, whole) <= SAME_RTOL
