@@ -40,7 +40,7 @@ except ImportError:  # pragma: no cover - another JAX layout: nothing is remembe
         pass
 
 __all__ = ["SOLVERS", "IMPLICIT_SOLVERS", "ADJOINTS", "Solution", "Settings", "settings", "integrate", "cached",
-           "TRACES", "check_finite", "leaf_groups", "check_state", "check_times", "runtime_checks", "as_time"]
+           "TRACES", "check_finite", "leaf_groups", "check_state", "check_times", "runtime_checks", "merge_checks", "as_time"]
 
 #: Adaptive solvers by name. Explicit: Bogacki–Shampine 3(2), Tsitouras 5(4), Dormand–Prince 5(4) and 8(7).
 #: Implicit (L-stable ESDIRK, for stiff friction or stiff springs): Kvaerno 3(2), 4(3), 5(4).
@@ -311,6 +311,14 @@ def leaf_groups(params: Any) -> list[tuple[str, Array]]:
     """``(label, leaf)`` for every floating leaf of a pytree, labelled by its path (``.inertia``, ``['w']``)."""
     return [(jax.tree_util.keystr(path) or "params", leaf)
             for path, leaf in jax.tree_util.tree_flatten_with_path(params)[0] if eqx.is_inexact_array(leaf)]
+
+
+def merge_checks(*checks):
+    """One ``(flags, messages)`` of several (``None`` entries skipped; the first flagged entry is reported)."""
+    checks = [c for c in checks if c is not None]
+    if not checks:
+        return None
+    return jnp.concatenate([c[0] for c in checks]), [m for c in checks for m in c[1]]
 
 
 def runtime_checks(y0, time_bad: Array, param_bad, entry: str, names: str):

@@ -192,24 +192,26 @@ def check_inertia(mass, com, inertia, name: str = "body", *, degenerate_ok: bool
             )
 
 
-def physical_inertia(mass, inertia) -> Array:
+def physical_inertia(mass, inertia, atol=0.0) -> Array:
     """Whether ``(mass, inertia about the centre of mass)`` is physical by :func:`check_inertia`'s conditions with
     ``degenerate_ok`` and its tolerances (shapes ``(...)`` and ``(..., 3, 3)``; traceable, for run-time checks of
-    values set under a trace): ``mass > 0``, a symmetric tensor, principal moments ``>= 0`` meeting the triangle
-    inequalities ``I_k <= I_i + I_j``, each within :data:`PHYSICAL_RTOL` of the tensor's scale. False for non-finite
-    values. (Its verdict only: no derivative passes through it.)"""
-    m = jnp.asarray(mass)
-    i = jax.lax.stop_gradient(jnp.asarray(inertia))
-    m = jax.lax.stop_gradient(m)
-    tr = jnp.trace(i, axis1=-2, axis2=-1)
-    scale = jnp.maximum(jnp.maximum(tr, m * POINT_RADIUS**2), np.finfo(float).tiny)
-    tol = PHYSICAL_RTOL * scale
-    finite = jnp.isfinite(m) & jnp.all(jnp.isfinite(i), axis=(-2, -1))
-    sym = 0.5 * (i + jnp.swapaxes(i, -1, -2))
-    eig = jnp.linalg.eigvalsh(jnp.where(finite[..., None, None], sym, 0.0))  # ascending
-    others = jnp.sum(eig, axis=-1, keepdims=True) - eig
-    return (finite & (m > 0.0) & jnp.all(jnp.abs(i - jnp.swapaxes(i, -1, -2)) <= tol[..., None, None], axis=(-2, -1))
-            & (eig[..., 0] >= -tol) & jnp.all(eig <= others + tol[..., None], axis=-1))
+    values set under a trace; NumPy in, NumPy out): ``mass > 0``, a symmetric tensor, principal moments ``>= 0``
+    meeting the triangle inequalities ``I_k <= I_i + I_j``, each within :data:`PHYSICAL_RTOL` of the tensor's scale
+    plus ``atol`` (shape ``(...)``; the symmetry test without it, as there). False for non-finite values. (Its verdict
+    only: no derivative passes through it.)"""
+    xp = xp_of(mass, inertia, atol)
+    cut = (lambda x: x) if xp is np else jax.lax.stop_gradient
+    m, i, atol = (cut(xp.asarray(x, dtype=float)) for x in (mass, inertia, atol))
+    tr = xp.trace(i, axis1=-2, axis2=-1)
+    scale = xp.maximum(xp.maximum(tr, m * POINT_RADIUS**2), np.finfo(float).tiny)
+    sym_tol = PHYSICAL_RTOL * scale
+    tol = sym_tol + atol
+    finite = xp.isfinite(m) & xp.all(xp.isfinite(i), axis=(-2, -1))
+    sym = 0.5 * (i + xp.swapaxes(i, -1, -2))
+    eig = xp.linalg.eigvalsh(xp.where(finite[..., None, None], sym, 0.0))  # ascending
+    others = xp.sum(eig, axis=-1, keepdims=True) - eig
+    symmetric = xp.all(xp.abs(i - xp.swapaxes(i, -1, -2)) <= sym_tol[..., None, None], axis=(-2, -1))
+    return finite & (m > 0.0) & symmetric & (eig[..., 0] >= -tol) & xp.all(eig <= others + tol[..., None], axis=-1)
 
 
 def balance_inertia(inertia) -> tuple[np.ndarray, bool]:

@@ -33,6 +33,9 @@ from . import _ode
 from ._ode import ADJOINTS, IMPLICIT_SOLVERS, SOLVERS, Solution
 from ._xla import top_level
 from .errors import ModelError
+from .tree.checks import physical_checks, physical_checks_eager
+from .tree.kinematics import _parameter_groups as _tree_groups
+from .tree.model import TreeModel
 
 __all__ = ["SOLVERS", "IMPLICIT_SOLVERS", "ADJOINTS", "Solution", "simulate"]
 
@@ -98,10 +101,18 @@ def _check_output_shapes(dynamics, control, params, q0, qd0, t0) -> None:
         _SHAPES_PASSED[key] = True
 
 
+def _parameter_groups(params) -> list:
+    """``(label, array)`` of the parameters' floating leaves: a tree's as its own entries label them (link by link;
+    soft limits' infinite bounds allowed), any other pytree's by path."""
+    return _tree_groups(params) if isinstance(params, TreeModel) else _ode.leaf_groups(params)
+
+
 @_ode.cached("simulate")
 def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, switch=(),
-              max_events=0, warn=()) -> Solution:
-    param_bad = _ode.check_finite("simulate", _ode.leaf_groups(params))
+              max_events=0, warn=(), check_physical=False) -> Solution:
+    # A tree's non-physical values are looked for here only when the eager check could not see them (traced leaves).
+    param_bad = _ode.merge_checks(_ode.check_finite("simulate", _parameter_groups(params)),
+                                  physical_checks(params) if check_physical else None)
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate", "(q0, qd0)")
 
     rate = getattr(params, "configuration_rate", None)
@@ -224,7 +235,14 @@ def simulate(
         ValueError: unknown solver or adjoint name; non-positive tolerances or step budget; ``t1 <= t0``;
             non-finite concrete initial state.
         ModelError: q0/qd0 shapes disagree with each other, with ``params.nq`` or with what ``dynamics`` returns;
-            a floating parameter is NaN or inf (at run time when traced).
+            a floating parameter is NaN or inf (at run time when traced); for a
+            :class:`~particlesim.tree.TreeModel`, a negative friction level, rotor inertia or joint stiffness, or a
+            soft limit with negative stiffness or damping or crossed bounds (:mod:`particlesim.tree.checks`; at run
+            time, by JAX's run-time error, when traced).
+        InertiaError: for a ``TreeModel``, a link that is neither massless nor a physical body (a positive mass, an
+            inertia about its centre of mass symmetric, positive semi-definite and within the triangle
+            inequalities), or a joint that moves no mass (at run time when traced; a model loaded with
+            ``inertia="warn"`` keeps its links unchecked).
     """
     q0 = _ode.as_state(q0)
     qd0 = _ode.as_state(qd0)
@@ -233,7 +251,10 @@ def simulate(
     _check_state(params, q0, qd0)
     t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
 
-    _ode.check_finite_eager("simulate", params, lambda: _ode.leaf_groups(params))  # concrete values, before tracing
+    tree = isinstance(params, TreeModel)
+    concrete = _ode.check_finite_eager("simulate", params, lambda: _parameter_groups(params),  # concrete values, now
+                                       (lambda: physical_checks_eager(params)) if tree else None)
+    check_physical = tree and not concrete
     _check_output_shapes(dynamics, control, params, q0, qd0, t0_)
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:
         raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
@@ -251,7 +272,7 @@ def simulate(
         if isinstance(cfg.adjoint, diffrax.BacksolveAdjoint):
             raise ValueError("events=True needs a discrete adjoint ('checkpoint', 'direct', 'forward')")
         return _simulate(dynamics, control, params, q0, qd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg,
-                         switch, int(max_events) if switch else 0)
+                         switch, int(max_events) if switch else 0, check_physical=check_physical)
     warn = tuple((j, names[j]) for j in switch) if switch and _ode.differentiated((params, q0, qd0)) else ()
     return _simulate(dynamics, control, params, q0, qd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg,
-                     warn=warn)
+                     warn=warn, check_physical=check_physical)

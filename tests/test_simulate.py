@@ -144,10 +144,10 @@ def test_nan_initial_state_under_jit_raises_at_run_time():
 
 
 def test_non_finite_parameters_are_refused(two_link):
-    """Parameters set with ``with_params`` (unchecked) reach simulate: NaN/inf is an error naming the leaf, eagerly
-    and under jit, never a NaN trajectory."""
+    """Parameters set with ``with_params`` (unchecked) reach simulate: NaN/inf is an error naming the leaf (a tree's
+    per-link leaves by link), eagerly and under jit, never a NaN trajectory."""
     bad = two_link.with_params(inertia=two_link.inertia.at[1, 0].set(jnp.nan))
-    with pytest.raises(ModelError, match=r"parameter \.inertia is not finite .* at entry \(1, 0\)"):
+    with pytest.raises(ModelError, match=r"parameter inertia of link 'b' is not finite .* at entry \(0,\)"):
         simulate(tree_dynamics, bad, jnp.zeros(2), jnp.zeros(2), 0.0, 0.1)
     with pytest.raises(ModelError, match=r"parameter \['w'\] is not finite"):
         simulate(oscillator, {"w": jnp.array(jnp.inf)}, Q0, QD0, 0.0, 1.0)

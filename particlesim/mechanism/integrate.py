@@ -165,14 +165,6 @@ def physical_checks_eager(mech: Mechanism, entry: str = "simulate_mechanism") ->
                     raise ModelError(f"{entry}: {prefix} '{n}' {f.replace('_', ' ')} must be non-negative, got {v!r}")
 
 
-def _merge_checks(*checks):
-    """One ``(flags, messages)`` of several (``None`` entries skipped; the first flagged entry is reported)."""
-    checks = [c for c in checks if c is not None]
-    if not checks:
-        return None
-    return jnp.concatenate([c[0] for c in checks]), [m for c in checks for m in c[1]]
-
-
 def _initial_contact(deflection, q0, qd0, xdd_free):
     """Each tyre's law at the start (1.0 in contact): compressed (deflection < 0), or at exactly zero deflection
     heading into the ground: deflection rate < 0, or at rest with the free (no-contact) acceleration pressing in.
@@ -206,7 +198,7 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
               max_events=0, warn_switch=False, check_physical=True):
     # Non-physical values are looked for here only when the eager check could not see them (traced leaves): the
     # bodies' test costs ~40 us per call (a 3 x 3 eigendecomposition per body), a tenth of a one-step rollout.
-    param_bad = _merge_checks(_ode.check_finite("simulate_mechanism", parameter_groups(mech)),
+    param_bad = _ode.merge_checks(_ode.check_finite("simulate_mechanism", parameter_groups(mech)),
                               physical_checks(mech) if check_physical else None)
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate_mechanism", "(q0, qd0)")
     plan = chain_plan(mech) if solve == "chain" else None

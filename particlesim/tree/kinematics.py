@@ -106,10 +106,21 @@ def _parameters_finite(model: TreeModel) -> None:
 
 
 def _parameter_groups(model: TreeModel) -> list:
-    """``(label, array)`` of every parameter; the per-link arrays (inertia, joint origins) labelled link by link."""
+    """``(label, array)`` of every parameter; the per-link arrays (inertia, joint origins) labelled link by link;
+    soft limits with their infinite bounds (an unlimited side, e.g. a continuous joint's) read as zero, so that only
+    NaN bounds and non-finite stiffness or damping count as not finite."""
     per_link = {".inertia": "inertia", ".origin_xyz": "origin_xyz"}
     return [([f"{per_link[label]} of link '{name}'" for name in model.link_names], leaf) if label in per_link
-             else (label, leaf) for label, leaf in _ode.leaf_groups(model)]
+             else (label, _finite_bounds(leaf) if label == ".limits" else leaf)
+             for label, leaf in _ode.leaf_groups(model)]
+
+
+def _finite_bounds(limits):
+    """``limits`` ``(nv, 4)`` with infinite lower and upper bounds replaced by zero (NaN kept)."""
+    xp = np if _ode._concrete(limits) else jnp
+    lim = xp.asarray(limits)
+    bound = xp.broadcast_to(xp.arange(lim.shape[-1]) < 2, lim.shape)
+    return xp.where(bound & xp.isinf(lim), 0.0, lim)
 
 
 def _quaternion_checks(model: TreeModel, arrays: dict) -> None:

@@ -131,6 +131,9 @@ class TreeModel(eqx.Module):
     origin_rotations: tuple = eqx.field(static=True)
     frames: tuple = eqx.field(static=True)  # (name, owner link or -1, rotation (9,), translation (3,)) per frame
     mimic: tuple = eqx.field(static=True)  # per joint: () or (source joint index, multiplier, offset)
+    #: Whether the links' inertias were checked when built (False for ``load_urdf(..., inertia="warn")``, which keeps
+    #: non-physical tensors on purpose): :func:`~.checks.physical_checks` then leaves them alone.
+    inertia_checked: bool = eqx.field(static=True, default=True)
 
     def __init__(
         self,
@@ -258,6 +261,7 @@ class TreeModel(eqx.Module):
         self.axes = tuple(tuple(float(v) for v in a) for a in ax)
         self.origin_rotations = tuple(tuple(float(v) for v in r.ravel()) for r in rot)
         self.frames = _frames(frames or (), link_names, n)
+        self.inertia_checked = bool(validate_inertia)
 
     # ---- static views (numpy, computed at trace time) ----
     @property

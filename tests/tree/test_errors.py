@@ -238,3 +238,90 @@ def test_non_finite_parameters_refused_by_name_before_dispatch():
     held.viscous[0] = np.nan
     with pytest.raises(ModelError, match=r"viscous is not finite"):
         forward_dynamics(held, q, q, q)
+
+
+def test_non_physical_tree_values_refused_by_simulate():
+    """``simulate`` refuses non-physical tree parameters that no constructor saw, naming the link or joint: concrete
+    values replaced as whole arrays (``with_params(inertia=...)``, ``eqx.tree_at``) before the run, traced ones when
+    the program runs (JAX's run-time error): a negative link mass, an inertia breaking the triangle inequality, a joint
+    left moving no mass, a negative viscous friction, a soft limit with negative damping; NaN as not finite. A
+    physical traced change runs and equals the same change made concretely; a model loaded with ``inertia="warn"``
+    keeps its links unchecked."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from particlesim.simulate import simulate
+    from particlesim.inertia import origin_params
+    from particlesim.tree import forward_dynamics
+
+    model = load_urdf(_urdf(GOOD), viscous=[0.1, 0.2], limits="ignore")
+    q0 = jnp.asarray([0.3, 0.05])
+
+    def final(m):
+        return simulate(forward_dynamics, m, q0, jnp.zeros(2), 0.0, 0.05).q[-1]
+
+    row = np.asarray(model.inertia[1])
+    flat = np.asarray(origin_params(1.0, np.array([0.0, 0.0, 0.1]), np.diag([1.0, 1.0, 3.0])))  # 3 > 1 + 1
+    cases = [("inertia", model.inertia.at[1, 0].set(-1.0), InertiaError, "link 'b'"),
+             ("inertia", model.inertia.at[1].set(flat), InertiaError, "link 'b'"),
+             ("inertia", model.inertia.at[1].set(0.0), InertiaError, "joint 'j2' moves no mass"),
+             ("viscous", jnp.asarray([0.1, -0.2]), ModelError, "viscous friction of joint 'j2' is negative")]
+    for field, value, error, match in cases:
+        bypass = eqx.tree_at(lambda m: getattr(m, field), model, value)
+        with pytest.raises(error, match="simulate: " + match):
+            final(bypass)
+        with pytest.raises(jax.errors.JaxRuntimeError, match="simulate: " + match):
+            jax.block_until_ready(jax.jit(lambda v: final(model.with_params(**{field: v})))(value))
+    with pytest.raises(jax.errors.JaxRuntimeError, match="parameter inertia of link 'a' is not finite"):
+        jax.block_until_ready(jax.jit(lambda v: final(model.with_params(inertia=v)))(model.inertia.at[0, 4].set(
+            jnp.nan)))
+    limited = load_urdf(_urdf(GOOD), limits="model", limit_stiffness=100.0, limit_damping=1.0)
+    bad_limits = limited.limits.at[0, 3].set(-1.0)
+    with pytest.raises(ModelError, match="simulate: limits of 'j1'"):
+        final(eqx.tree_at(lambda m: m.limits, limited, bad_limits))
+    with pytest.raises(jax.errors.JaxRuntimeError, match="simulate: limits of 'j1'"):
+        jax.block_until_ready(jax.jit(lambda v: final(limited.with_params(limits=v)))(bad_limits))
+    heavier = model.inertia.at[1].set(2.0 * row)
+    traced = jax.jit(lambda v: final(model.with_params(inertia=v)))(heavier)
+    np.testing.assert_allclose(np.asarray(traced), np.asarray(final(model.with_params(inertia=heavier))), rtol=0.0,
+                               atol=1e-12)
+    bad_inertial = INERTIAL.replace('izz="0.01"', 'izz="0.05"')  # 0.05 > 0.01 + 0.01
+    with pytest.warns(Warning):
+        kept = load_urdf(_urdf(GOOD, inertial=bad_inertial), inertia="warn", limits="ignore")
+    assert not kept.inertia_checked and np.all(np.isfinite(np.asarray(final(kept))))
+    assert np.all(np.isfinite(np.asarray(jax.jit(lambda v: final(kept.with_params(inertia=v)))(kept.inertia))))
+
+
+def test_run_time_link_test_agrees_with_the_constructors_check():
+    """The links' run-time test (NumPy and traced) against the constructor's ``origin_params_check`` on rows about
+    the link origin: rotated physical bodies, a rod, a massless (zero) row, a point-like link far from its joint
+    (a 1.3 kg mass with a 1e-18 tensor 0.4 m away: physical only with the shift's rounding allowed), a broken
+    triangle inequality, a negative moment, a negative mass, a mass with a zero tensor, and a NaN."""
+    import jax
+    import jax.numpy as jnp
+
+    from particlesim.inertia import origin_params
+    from particlesim.spatial import rpy_to_matrix
+    from particlesim.tree.checks import _links_physical
+    from particlesim.tree.model import origin_params_check
+
+    rng = np.random.default_rng(5)
+    rows = []
+    for moments in ((1.0, 2.0, 2.5), (0.0, 1.0, 1.0), (1.0, 2.0, 3.0 + 1e-3), (-0.1, 1.0, 1.0), (0.3, 0.4, 0.5)):
+        r = np.asarray(rpy_to_matrix(rng.uniform(-np.pi, np.pi, 3)))
+        rows.append(np.asarray(origin_params(2.0, rng.normal(size=3), r @ np.diag(moments) @ r.T)))
+    rows += [np.zeros(10), np.asarray(origin_params(1.3, np.array([0.0, 0.0, 0.4]), 1e-18 * np.eye(3))),
+             np.asarray(origin_params(-1.0, np.zeros(3), np.eye(3))), np.r_[1.0, np.zeros(9)],
+             np.r_[np.nan, np.zeros(9)]]
+    expected = []
+    for row in rows:
+        try:
+            origin_params_check(row, "link")
+            expected.append(True)
+        except InertiaError:
+            expected.append(False)
+    assert expected == [True, True, False, False, True, True, True, False, True, False]
+    table = np.stack(rows)
+    assert _links_physical(table).tolist() == expected
+    assert np.asarray(jax.jit(_links_physical)(jnp.asarray(table))).tolist() == expected

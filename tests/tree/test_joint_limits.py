@@ -67,3 +67,43 @@ def test_mjcf_ranges_become_soft_limits_and_ball_cones_are_said():
     with pytest.warns(UserWarning, match="joint ranges of 1 joint\\(s\\) are not modelled \\(e.g. 'cone'\\)"):
         model = load_mjcf(xml, limits="model", limit_stiffness=30.0, limit_damping=0.2)
     np.testing.assert_array_equal(np.asarray(model.limits), [[-0.5, 0.7, 30.0, 0.2]] + [[-np.inf, np.inf, 30.0, 0.2]] * 3)
+
+
+def test_continuous_joints_with_modelled_limits_run_unbounded():
+    """``limits="model"`` on a file with a continuous joint: that joint's bounds are infinite (no stop), which every
+    entry accepts as finite parameters (only NaN bounds or non-finite stiffness and damping are refused); the rotor
+    spins past any angle exactly as without limits (a rollout and its gradient), while its limited neighbour's stop
+    still acts."""
+    import jax
+    import jax.numpy as jnp
+
+    urdf = ROTOR.replace('type="revolute"', 'type="continuous"').replace(
+        '</robot>', '<link name="arm"><inertial><mass value="1"/><origin xyz="0.2 0 0"/><inertia ixx="0.01" ixy="0" '
+        'ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link><joint name="hinge" type="revolute"><parent '
+        'link="disc"/><child link="arm"/><origin xyz="0.3 0 0"/><axis xyz="0 0 1"/><limit lower="-0.5" upper="0.5" '
+        'effort="1" velocity="1"/></joint></robot>')
+    limited = load_urdf(urdf, limits="model", limit_stiffness=K, limit_damping=C)
+    free = load_urdf(urdf, limits="ignore")
+    lim = np.asarray(limited.limits)
+    assert np.isinf(lim[0, :2]).all() and np.isfinite(lim[1]).all()
+    q, qd = np.array([40.0, 0.1]), np.array([3.0, -0.2])
+    np.testing.assert_array_equal(np.asarray(forward_dynamics(limited, q, qd, np.zeros(2))),
+                                  np.asarray(forward_dynamics(free, q, qd, np.zeros(2))))
+
+    def final(model, w):
+        return simulate(forward_dynamics, model, jnp.zeros(2), jnp.array([w, 0.0]), 0.0, 1.0, rtol=1e-10,
+                        atol=1e-12).q[-1]
+
+    ours, ref = final(limited, 20.0), final(free, 20.0)
+    assert float(ours[0]) > 15.0  # turned past any bound
+    np.testing.assert_allclose(np.asarray(ours), np.asarray(ref), rtol=0, atol=1e-9)
+    g = jax.grad(lambda w: final(limited, w)[0])(20.0)
+    assert np.isfinite(float(g)) and float(g) == pytest.approx(float(jax.grad(lambda w: final(free, w)[0])(20.0)),
+                                                               rel=1e-6)
+    ts = np.linspace(0.0, 0.5, 51)
+
+    def hinge(model):
+        return np.asarray(simulate(forward_dynamics, model, jnp.array([0.0, 0.45]), jnp.array([0.0, 2.0]), 0.0, 0.5,
+                                   saveat_ts=ts, rtol=1e-10, atol=1e-12).q[:, 1])
+
+    assert hinge(limited).max() < 0.6 and hinge(free).max() > 0.9  # the hinge's stop holds it back
