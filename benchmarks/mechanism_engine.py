@@ -171,9 +171,9 @@ def _label(solver, pid, chunk, ndev=1):
     return f"ours {solver}{ctl} {how}" + (f", {ndev} host devices" if ndev > 1 else "")
 
 
-def _ours_batch_rows(thetas, ref, solvers=BATCH_SOLVERS, chunks=BATCH_CHUNKS) -> list[dict]:
-    """Ours on every device JAX sees (``sharded_vmap``): the loosest rtol meeting the target on the checked
-    members, then the whole batch per chunking."""
+def _ours_batch_rows(thetas, ref, solvers=BATCH_SOLVERS, chunks=BATCH_CHUNKS, threads=1) -> list[dict]:
+    """Ours on every device JAX sees (``sharded_vmap``; on one device in ``threads`` parts, one per thread): the
+    loosest rtol meeting the target on the checked members, then the whole batch per chunking."""
     mech, x0 = qc.quarter_car()
     member = _batch_member(mech, jnp.asarray(x0))
     ndev = jax.device_count()
@@ -189,9 +189,10 @@ def _ours_batch_rows(thetas, ref, solvers=BATCH_SOLVERS, chunks=BATCH_CHUNKS) ->
             if err <= TARGET:
                 break
         for chunk in chunks:
-            fn = sharded_vmap(lambda th: member(th, rtol, solver, pid), chunk=chunk)
+            fn = sharded_vmap(lambda th: member(th, rtol, solver, pid), chunk=chunk, threads=threads)
             comp, run = _first_and_cached(lambda: jax.block_until_ready(fn(jnp.asarray(thetas))))
-            rows.append({"method": _label(solver, pid, chunk, ndev), "setting": f"rtol {rtol:g}",
+            label = _label(solver, pid, chunk, ndev) + (f", {threads} threads (one device)" if threads > 1 else "")
+            rows.append({"method": label, "setting": f"rtol {rtol:g}",
                          "checked_error_m": err, "wall_s": run, "compile_s": comp, "per_s": BATCH / run,
                          "sweep": sweep})
             print(rows[-1], flush=True)
@@ -228,7 +229,8 @@ def batch() -> dict:
     member = _batch_member(mech, x0)
     ref_fn = jax.jit(jax.vmap(lambda th: member(th, 1e-12, "dopri8")))
     ref = np.asarray(ref_fn(jnp.asarray(thetas[:CHECKED])))
-    rows = _ours_batch_rows(thetas, ref) + _two_device_rows(thetas, ref)
+    rows = _ours_batch_rows(thetas, ref) + _ours_batch_rows(thetas, ref, chunks=(1,), threads=2)
+    rows += _two_device_rows(thetas, ref)
     # MuJoCo C: one model per member, the tyre per model through the compiled callback
     base_xml = mjcb.tyre_numeric(twin_xml(1e-3), qc.TYRE["stiffness"], qc.TYRE["damping"])
 

@@ -7,6 +7,7 @@ the caller's program and compiled with the caller's options (:func:`top_level` t
 from __future__ import annotations
 
 import functools
+import threading
 
 import jax
 
@@ -92,6 +93,9 @@ def top_level() -> bool:
     return _trace_state_clean()
 
 
+_TOP_LOCK = threading.Lock()
+
+
 class TopJit:
     """``jax.jit(fn, **kwargs)``, compiled with :func:`cpu_options` (``batch``: True or "wide") when
     called or lowered at top level; inside a trace it is the plain ``jax.jit``, inlined into the caller's program.
@@ -111,9 +115,11 @@ class TopJit:
         if not top_level():
             return self._nested
         if self._top is None:
-            options = {**cpu_options(self._batch), **self._options}
-            self._top = jax.jit(self._fn, compiler_options=options or None, **self._kwargs)
-            self.top_options = options
+            with _TOP_LOCK:  # threads running parts of one batch must share one jit (one compile)
+                if self._top is None:
+                    options = {**cpu_options(self._batch), **self._options}
+                    self.top_options = options
+                    self._top = jax.jit(self._fn, compiler_options=options or None, **self._kwargs)
         return self._top
 
     def __call__(self, *args, **kwargs):

@@ -20,6 +20,7 @@ synchronisation per step) and each batch member sees exactly the operations it s
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -30,6 +31,8 @@ import numpy as np
 from jax.sharding import Mesh, PartitionSpec as P
 
 from . import _xla
+from ._ode import _ArrayImpl
+from ._threads import pool, usable_cores
 
 __all__ = ["AXIS", "batch_mesh", "stack", "param_axes", "sharded_vmap"]
 
@@ -107,7 +110,7 @@ def _batch_size(leaves, axes) -> int:
 
 
 def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh: Mesh | None = None,
-                 chunk: int | None = None) -> Callable:
+                 chunk: int | None = None, threads: int | None = None) -> Callable:
     """``jax.jit(jax.vmap(fn, in_axes))`` with the batch split across the devices of ``mesh``.
 
     Args:
@@ -123,18 +126,30 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
             on the 18-joint Krang a chunk of 4 ran 2.4x faster per member than a vectorised batch of 64
             (``benchmarks/batched_rollouts.py``). Particle mechanisms run fastest one member at a time
             (``chunk=1``): on 1024 quarter cars 1.2x the throughput of chunks of 8 and 2.5x that of vmap with
-            Tsit5, 1.0x and 1.8x with Bosh3 (``benchmarks/mechanism_engine.py``); split the batch over host
-            devices to use every core.
+            Tsit5, 1.0x and 1.8x with Bosh3 (``benchmarks/mechanism_engine.py``).
+        threads: on a mesh of one device, a batch passed from Python (concrete arrays, outside any trace) is split
+            into this many equal parts, each run by the same compiled program on its own thread, so that every
+            core works (XLA:CPU runs a rollout's loop on one core). ``None`` (default): the cores this process may
+            run on (its CPU affinity); 1: one program. Parts are whole multiples of
+            ``chunk`` members (the last part padded with copies of the last member, dropped from the result), so
+            with a ``chunk`` dividing the batch every member sees the operations it sees in one program (a short
+            last chunk is vectorised with the padding instead of alone: equal to round-off); with ``vmap`` (no
+            chunk) the members of a part step together, as on one device of a mesh. Several devices (host devices or
+            GPUs) split the batch over the mesh instead.
 
     Returns:
-        A jitted function of the batched arguments whose outputs carry the batch on their leading axis, split
-        across the mesh. The batch size must be a multiple of the number of devices (pad it otherwise).
+        A function of the batched arguments whose outputs carry the batch on their leading axis, split across the
+        mesh (jitted: inside a caller's trace it is traced inline). The batch size must be a multiple of the
+        number of devices (pad it otherwise).
     """
     mesh = batch_mesh() if mesh is None else mesh
     if mesh.axis_names != (AXIS,):
         raise ValueError(f"sharded_vmap needs a one-dimensional mesh with axis {AXIS!r}, got {mesh.axis_names}")
     if chunk is not None and (not isinstance(chunk, (int, np.integer)) or chunk < 1):
         raise ValueError(f"chunk must be a positive integer or None, got {chunk!r}")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
+                                or threads < 1):
+        raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
     ndev = mesh.devices.size
 
     @_xla.TopJit
@@ -168,4 +183,57 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
         return jax.shard_map(per_device, mesh=mesh, in_specs=tuple(specs), out_specs=P(AXIS),
                              check_vma=False)(*args)
 
-    return run
+    def call(*args):
+        parts = 1
+        if ndev == 1 and _xla.top_level():
+            parts = usable_cores() if threads is None else int(threads)
+        if parts > 1:
+            leaves, treedef = jax.tree.flatten(args)
+            if all(type(leaf) is _ArrayImpl or isinstance(leaf, np.ndarray) or not isinstance(leaf, jax.Array)
+                   for leaf in leaves):  # concrete (no tracer among them)
+                axes = _leaf_axes(in_axes, args)
+                b = _batch_size(leaves, axes)
+                unit = 1 if chunk is None else int(chunk)
+                per = -(-b // (parts * unit)) * unit  # members per part, a whole number of chunks
+                parts = -(-b // per)
+                if parts > 1:
+                    return _in_parts(run, leaves, treedef, axes, b, per, parts)
+        return run(*args)
+
+    call.jit = run  # the compiled program (of one part, or of the whole batch)
+    call.lower = run.lower  # one program over the whole batch (no threads), as jax.jit(...).lower
+    functools.update_wrapper(call, fn, assigned=("__doc__",), updated=())
+    return call
+
+
+def _in_parts(run, leaves, treedef, axes, b: int, per: int, parts: int):
+    """``run`` on ``parts`` parts of ``per`` members, the first on this thread and the others on pool threads; the
+    batch padded to ``parts * per`` members with copies of its last one, cut off after."""
+    pad = parts * per - b
+    chunks = [[] for _ in range(parts)]
+    for leaf, ax in zip(leaves, axes):
+        if ax == 0:
+            x = jnp.asarray(leaf)
+            if pad:
+                x = jnp.concatenate([x, jnp.broadcast_to(x[-1:], (pad,) + x.shape[1:])])
+            for k in range(parts):
+                chunks[k].append(x[k * per:(k + 1) * per])
+        else:
+            for k in range(parts):
+                chunks[k].append(leaf)
+    args = [jax.tree.unflatten(treedef, c) for c in chunks]
+    rest = [pool(parts - 1).submit(_run_blocked, run, a) for a in args[1:]]
+    outs = [_run_blocked(run, args[0])] + [f.result() for f in rest]
+    return _join(outs, b)
+
+
+def _run_blocked(run, args):
+    """One part, dispatched and waited for on its thread (the pool's parts handed over first: see
+    :func:`particlesim.tree.dynamics._run`)."""
+    return jax.block_until_ready(run(*args))
+
+
+@functools.partial(jax.jit, static_argnames="size")
+def _join(outs, size: int):
+    """The parts' outputs (pytrees with the batch leading) as one batch of ``size`` members."""
+    return jax.tree.map(lambda *xs: jnp.concatenate(xs)[:size], *outs)

@@ -127,6 +127,51 @@ def test_batch_of_parameter_sets_equals_single_rollouts(krang, chunk):
         assert np.max(np.abs(np.asarray(qd[i]) - np.asarray(qdi))) <= LOOP_RTOL * np.max(np.abs(np.asarray(qdi)))
 
 
+def test_batches_split_over_threads_on_one_device(krang, monkeypatch):
+    """On a one-device mesh a batch passed from Python runs in parts, one per thread, each a whole number of chunks
+    (6 Krang members, chunks of 2, 2 threads: parts of 4 members, the last padded with 2 copies of the last member):
+    bit for bit the result of one program, members and step counts (the batch a multiple of the chunk: a short last
+    chunk would be vectorised with the padding instead of alone); a replicated argument goes to every part; inside a
+    caller's ``jit`` the batch is one program; ``threads`` must be a positive integer."""
+    from particlesim import batch as batch_module
+
+    rng = np.random.default_rng(8)
+    b = 6
+    inertias = krang.inertia[None] * jnp.asarray(rng.uniform(0.8, 1.2, (b, krang.nq, 1)))
+    models = krang.with_params(inertia=inertias)
+    q0 = jnp.asarray(rng.uniform(-0.5, 0.5, (b, krang.nq)))
+    qd0 = jnp.asarray(rng.normal(0.0, 0.3, (krang.nq,)))
+
+    def rollout(model, q0, qd0):
+        sol = simulate(forward_dynamics, model, q0, qd0, 0.0, 0.1, solver="tsit5", rtol=1e-8, atol=1e-10)
+        return sol.q[-1], sol.steps
+
+    axes = (param_axes(krang, "inertia"), 0, None)
+    mesh = batch_mesh(jax.devices()[:1])
+    parted = []
+    real = batch_module._in_parts
+
+    def spy(run, leaves, treedef, ax, size, per, parts):
+        parted.append((size, per, parts))
+        return real(run, leaves, treedef, ax, size, per, parts)
+
+    monkeypatch.setattr(batch_module, "_in_parts", spy)
+    one = sharded_vmap(rollout, axes, mesh=mesh, chunk=2, threads=1)(models, q0, qd0)
+    assert parted == []
+    two = sharded_vmap(rollout, axes, mesh=mesh, chunk=2, threads=2)(models, q0, qd0)
+    assert parted == [(6, 4, 2)]
+    for x, y in zip(one, two):
+        assert x.shape[0] == b
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    parted.clear()
+    inside = jax.jit(sharded_vmap(rollout, axes, mesh=mesh, chunk=2, threads=2))(models, q0, qd0)
+    assert parted == []
+    np.testing.assert_array_equal(np.asarray(inside[1]), np.asarray(one[1]))
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="threads must be a positive integer"):
+            sharded_vmap(rollout, axes, threads=bad)
+
+
 def test_stack_builds_a_batch_of_models(krang):
     ms = stack([krang, krang.with_params(inertia=krang.inertia * 1.1)])
     assert ms.inertia.shape == (2, krang.nq, 10)

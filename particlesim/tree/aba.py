@@ -26,7 +26,6 @@ limits as generalised forces); models with mimic, free or ball joints use the co
 from __future__ import annotations
 
 import functools
-import os
 
 import jax
 import jax.numpy as jnp
@@ -34,6 +33,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ..inertia import unpack_params
+from .._threads import usable_cores
 from ..spatial import sincos
 from .model import PRISMATIC, REVOLUTE, TreeModel
 
@@ -178,14 +178,6 @@ BATCH_THREADS: int | None = None
 #: Least link-states (states times links) per part: a part below about this much work (~0.4 ms for Krang on one core)
 #: gains less from a second core than a thread's hand-over costs.
 PART_LINK_STATES = 2048
-
-
-def usable_cores() -> int:
-    """Cores this process may run on (its CPU affinity where the platform tells it, else ``os.cpu_count()``)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def batch_parts(size: int, n_links: int) -> int:

@@ -536,8 +536,8 @@ def test_batches_split_over_threads(small_tree, threads, monkeypatch):
     out = forward_dynamics(small_tree, q, qd, tau, smooth_friction=0.1)
     assert out.shape == (2, 35, n)
     count = -(-70 // threads)
-    assert sorted(s for _, s in ran) == [min(i * count, 70 - count) for i in range(1, threads)]
-    assert all(t.startswith("particlesim-batch") for t, _ in ran)
+    assert sorted(s for _, s in ran) == [min(i * count, 70 - count) for i in range(threads)]
+    assert all(t.startswith("particlesim-batch") == (s > 0) for t, s in ran)  # the first part on this thread
     assert max_rel(out, whole) <= SAME_RTOL
 
     def by_state(model):
