@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Callable, Sequence
+
+import jax
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["usable_cores", "pool"]
+__all__ = ["usable_cores", "pool", "run_parts", "threads_apply"]
 
 _pools: dict[int, ThreadPoolExecutor] = {}
 _lock = threading.Lock()
@@ -29,3 +32,23 @@ def pool(workers: int) -> ThreadPoolExecutor:
         with _lock:
             p = _pools.setdefault(workers, ThreadPoolExecutor(workers, thread_name_prefix="particlesim-batch"))
     return p
+
+
+def run_parts(fn: Callable, parts: Sequence[tuple]) -> list:
+    """``[fn(*args) for args in parts]``, the first on this thread and the others on a kept pool's threads, handed
+    over before this thread starts its own (a program dispatched asynchronously first held back those dispatched
+    after it from other threads: two 0.25 s loops took 0.50-0.54 s that way, 0.25 s the other). A part the pool has
+    not started by the time this thread is done is taken back and run here, so that a part whose program calls back
+    into Python and starts another batch cannot wait on itself. Exceptions reach the caller."""
+    rest = [pool(len(parts) - 1).submit(fn, *args) for args in parts[1:]]
+    outs = [fn(*parts[0])]
+    for f, args in zip(rest, parts[1:]):
+        outs.append(fn(*args) if f.cancel() else f.result())
+    return outs
+
+
+def threads_apply() -> bool:
+    """Whether a batch may be split over threads here: JAX's default backend is the CPU (on a GPU the parts would
+    run one after another) and ``jax.disable_jit`` is off (a thread-local setting the pool's threads would not
+    see)."""
+    return not jax.config.jax_disable_jit and jax.default_backend() == "cpu"

@@ -32,7 +32,7 @@ from jax.sharding import Mesh, PartitionSpec as P
 
 from . import _xla
 from ._ode import _ArrayImpl
-from ._threads import pool, usable_cores
+from ._threads import run_parts, threads_apply, usable_cores
 
 __all__ = ["AXIS", "batch_mesh", "stack", "param_axes", "sharded_vmap"]
 
@@ -185,7 +185,7 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
 
     def call(*args):
         parts = 1
-        if ndev == 1 and _xla.top_level():
+        if ndev == 1 and _xla.top_level() and mesh.devices.flat[0].platform == "cpu" and threads_apply():
             parts = usable_cores() if threads is None else int(threads)
         if parts > 1:
             leaves, treedef = jax.tree.flatten(args)
@@ -193,6 +193,8 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
                    for leaf in leaves):  # concrete (no tracer among them)
                 axes = _leaf_axes(in_axes, args)
                 b = _batch_size(leaves, axes)
+                if b == 0:
+                    return run(*args)
                 unit = 1 if chunk is None else int(chunk)
                 per = -(-b // (parts * unit)) * unit  # members per part, a whole number of chunks
                 parts = -(-b // per)
@@ -221,15 +223,12 @@ def _in_parts(run, leaves, treedef, axes, b: int, per: int, parts: int):
         else:
             for k in range(parts):
                 chunks[k].append(leaf)
-    args = [jax.tree.unflatten(treedef, c) for c in chunks]
-    rest = [pool(parts - 1).submit(_run_blocked, run, a) for a in args[1:]]
-    outs = [_run_blocked(run, args[0])] + [f.result() for f in rest]
+    outs = run_parts(_run_blocked, [(run, jax.tree.unflatten(treedef, c)) for c in chunks])
     return _join(outs, b)
 
 
 def _run_blocked(run, args):
-    """One part, dispatched and waited for on its thread (the pool's parts handed over first: see
-    :func:`particlesim.tree.dynamics._run`)."""
+    """One part, dispatched and waited for on its thread (:func:`particlesim._threads.run_parts`)."""
     return jax.block_until_ready(run(*args))
 
 

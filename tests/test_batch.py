@@ -170,6 +170,7 @@ def test_batches_split_over_threads_on_one_device(krang, monkeypatch):
     for bad in (0, 1.5, True):
         with pytest.raises(ValueError, match="threads must be a positive integer"):
             sharded_vmap(rollout, axes, threads=bad)
+    assert sharded_vmap(lambda a: 2.0 * a, mesh=mesh, threads=2)(jnp.zeros((0, 3))).shape == (0, 3)  # empty batch
 
 
 def test_stack_builds_a_batch_of_models(krang):

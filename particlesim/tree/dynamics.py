@@ -31,7 +31,7 @@ from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
 from .._jit import _as_array, compiled
-from .._threads import pool
+from .._threads import run_parts, threads_apply
 from .._xla import top_level
 from .._ode import _ArrayImpl
 from .._linalg import spd_solve_applied
@@ -328,7 +328,7 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     depth = tree_depth(model.parents)
     if concrete and not by_state:
         parts = batch_parts(size, links)
-        if parts > 1:  # a part per core, each on its own thread
+        if parts > 1 and threads_apply():  # a part per core, each on its own thread
             return _in_parts(model, q, qd, tau, smooth_friction, size, parts, depth)
     wide = wide_batch(size, links, depth) and supports_aba(model)
     entry = _batched_wide if wide else _batched  # the same program; other XLA options for wide batches
@@ -386,14 +386,12 @@ def _in_parts(model: TreeModel, q, qd, tau, smooth_friction, size: int, parts: i
     ``i * count``, the last at ``size - count`` (it overlaps its neighbour when ``parts`` does not divide ``size``;
     :func:`_join` drops the repeated states)."""
     count = -(-size // parts)
+    parts = -(-size // count)  # (many parts of a small batch: fewer, so that at most the last one overlaps)
     wide = wide_batch(count, model.n_joints, depth) and supports_aba(model)
     entry = _batched_part_wide if wide else _batched_part
     starts = [min(i * count, size - count) for i in range(parts)]
-    rest = [pool(parts - 1).submit(_run, entry, model, q, qd, tau, _offset(s), smooth_friction, count)
-            for s in starts[1:]]
-    first = _run(entry, model, q, qd, tau, _offset(starts[0]), smooth_friction, count)
-    outs = (first, *(f.result() for f in rest))
-    return _join(outs, parts * count - size, q.shape[:-1])
+    outs = run_parts(_run, [(entry, model, q, qd, tau, _offset(s), smooth_friction, count) for s in starts])
+    return _join(tuple(outs), parts * count - size, q.shape[:-1])
 
 
 def _run(entry, *args):

@@ -100,7 +100,7 @@ def _parameters_finite(model: TreeModel) -> None:
         return
     groups = _parameter_groups(model)
     _ode.check_finite("TreeModel", groups)  # raises ModelError on a concrete non-finite entry
-    if all(type(arr) is _ode._ArrayImpl for _, arr in groups):
+    if all(type(arr) is _ode._ArrayImpl for arr in jax.tree.leaves(model)):
         key = id(model)
         _FINITE[key] = weakref.ref(model, lambda _, key=key: _FINITE.pop(key, None))
 
@@ -116,11 +116,13 @@ def _parameter_groups(model: TreeModel) -> list:
 
 
 def _finite_bounds(limits):
-    """``limits`` ``(nv, 4)`` with infinite lower and upper bounds replaced by zero (NaN kept)."""
+    """``limits`` ``(nv, 4)`` with a lower bound of ``-inf`` and an upper bound of ``+inf`` (no stop on that side)
+    replaced by zero; NaN, and an infinite bound on the wrong side, kept (refused as not finite)."""
     xp = np if _ode._concrete(limits) else jnp
     lim = xp.asarray(limits)
-    bound = xp.broadcast_to(xp.arange(lim.shape[-1]) < 2, lim.shape)
-    return xp.where(bound & xp.isinf(lim), 0.0, lim)
+    col = xp.broadcast_to(xp.arange(lim.shape[-1]), lim.shape)
+    open_side = ((col == 0) & (lim == -xp.inf)) | ((col == 1) & (lim == xp.inf))
+    return xp.where(open_side, 0.0, lim)
 
 
 def _quaternion_checks(model: TreeModel, arrays: dict) -> None:

@@ -2,6 +2,7 @@
 against Pinocchio's ABA, our recursive Newton–Euler inverse dynamics, and per-state evaluation."""
 
 import contextlib
+import threading
 
 import equinox as eqx
 import jax
@@ -502,11 +503,12 @@ def test_batch_parts_by_cores_and_work(monkeypatch):
     assert aba_module.usable_cores() >= 1
 
 
-@pytest.mark.parametrize("threads", [2, 3])
+@pytest.mark.parametrize("threads", [2, 3, 25])
 def test_batches_split_over_threads(small_tree, threads, monkeypatch):
     """A batch passed from Python runs in parts on as many threads (the parts' program on this one and on pool
-    threads): 70 states over leading axes (2, 35), broadcast from ``qd`` of shape (35, n), in 2 parts of 35 or 3 of
-    24 (the last starting at state 46, its first two states dropped). The same values as one program and as state by
+    threads): 70 states over leading axes (2, 35), broadcast from ``qd`` of shape (35, n), in 2 parts of 35, 3 of
+    24 (the last starting at state 46, its first two states dropped), or for 25 threads 24 parts of 3 (25 parts of
+    3 would start two at state 67). The same values as one program and as state by
     state, the batch's shape kept; the parts' program traced once, also for new states and parameter values; inside a
     caller's trace the batch is one program."""
     from particlesim import _ode
@@ -525,8 +527,6 @@ def test_batches_split_over_threads(small_tree, threads, monkeypatch):
     real_run = dynamics._run
 
     def spy(entry, *args):
-        import threading
-
         ran.append((threading.current_thread().name, args[4].item()))
         return real_run(entry, *args)
 
@@ -536,8 +536,12 @@ def test_batches_split_over_threads(small_tree, threads, monkeypatch):
     out = forward_dynamics(small_tree, q, qd, tau, smooth_friction=0.1)
     assert out.shape == (2, 35, n)
     count = -(-70 // threads)
-    assert sorted(s for _, s in ran) == [min(i * count, 70 - count) for i in range(threads)]
-    assert all(t.startswith("particlesim-batch") == (s > 0) for t, s in ran)  # the first part on this thread
+    parts = -(-70 // count)
+    assert parts == (24 if threads == 25 else threads)
+    assert sorted(s for _, s in ran) == [min(i * count, 70 - count) for i in range(parts)]
+    main = threading.current_thread().name
+    assert [t for t, s in ran if s == 0] == [main]  # the first part on this thread, others on the pool's
+    assert any(t.startswith("particlesim-batch") for t, _ in ran)
     assert max_rel(out, whole) <= SAME_RTOL
 
     def by_state(model):
@@ -545,7 +549,7 @@ def test_batches_split_over_threads(small_tree, threads, monkeypatch):
         return jax.jit(jax.vmap(fd, in_axes=(0, None, 0)))
 
     assert max_rel(out, by_state(small_tree)(q, qd, tau)) <= SAME_RTOL
-    assert _ode.TRACES[name] - before == 1
+    assert _ode.TRACES[name] - before == 1  # threads running their parts at once compiled one program
     heavier = small_tree.with_params(inertia=small_tree.inertia * 1.3)
     out2 = forward_dynamics(heavier, q + 0.1, qd, tau, smooth_friction=0.1)
     assert _ode.TRACES[name] - before == 1
@@ -553,3 +557,19 @@ def test_batches_split_over_threads(small_tree, threads, monkeypatch):
     ran.clear()
     inside = jax.jit(lambda a, b, c: forward_dynamics(small_tree, a, b, c, smooth_friction=0.1))(q, qd, tau)
     assert not ran and max_rel(inside, whole) <= SAME_RTOL
+
+
+def test_parts_nested_in_parts_do_not_wait_on_themselves():
+    """A part that itself starts a batch in parts (as a program calling back into Python could) on the same kept
+    pool: parts the pool has not started are taken back by the waiting thread, so nesting finishes (a watchdog
+    thread bounds the wait)."""
+    from particlesim._threads import run_parts
+
+    def part(depth):
+        return 1 if depth == 0 else sum(run_parts(part, [(depth - 1,), (depth - 1,)]))
+
+    out = []
+    t = threading.Thread(target=lambda: out.append(run_parts(part, [(3,), (3,)])), daemon=True)
+    t.start()
+    t.join(timeout=60)
+    assert out == [[8, 8]]

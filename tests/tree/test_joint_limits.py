@@ -86,6 +86,14 @@ def test_continuous_joints_with_modelled_limits_run_unbounded():
     free = load_urdf(urdf, limits="ignore")
     lim = np.asarray(limited.limits)
     assert np.isinf(lim[0, :2]).all() and np.isfinite(lim[1]).all()
+    import equinox as eqx
+
+    wrong = [lim.copy(), lim.copy()]  # an infinite bound on the wrong side is no open side: refused
+    wrong[0][0, 0], wrong[1][0, 1] = np.inf, -np.inf  # lower bound +inf, upper bound -inf
+    for w in wrong:
+        with pytest.raises(ModelError, match="limits is not finite"):
+            forward_dynamics(eqx.tree_at(lambda m: m.limits, limited, jnp.asarray(w)), np.zeros(2), np.zeros(2),
+                             np.zeros(2))
     q, qd = np.array([40.0, 0.1]), np.array([3.0, -0.2])
     np.testing.assert_array_equal(np.asarray(forward_dynamics(limited, q, qd, np.zeros(2))),
                                   np.asarray(forward_dynamics(free, q, qd, np.zeros(2))))
