@@ -346,15 +346,22 @@ def run() -> dict:
         "pin": lambda: pin.abaInParallel(2, pool, qT, qdT, tauT, aT),
         "mujoco": mj_batch2.forward,
     }
+    # Each lap: every contender once more untimed, then 3 timed calls, the order rotated from lap to lap. A call
+    # right after another contender's two threads runs slow (abaInParallel's OpenMP threads keep spinning after a
+    # call: ours right after it took 6.2-6.5 us per state against about 4 us otherwise), so no one's timed calls
+    # start on another's threads, and each follows each other contender equally often.
     two = {k: [] for k in contenders}
-    for _ in range(INTERLEAVED_LAPS):
-        for name, fn in contenders.items():
+    names = list(contenders)
+    for lap_no in range(INTERLEAVED_LAPS):
+        for name in names[lap_no % 3:] + names[:lap_no % 3]:
+            fn = contenders[name]
+            fn()
             t0 = time.perf_counter()
             for _ in range(3):
                 fn()
             two[name].append((time.perf_counter() - t0) / 3 / BATCH)
     two = {k: np.asarray(v) for k, v in two.items()}
-    note2 = f"this process, median of {INTERLEAVED_LAPS} interleaved laps"
+    note2 = f"this process, median of {INTERLEAVED_LAPS} interleaved laps, order rotated, one untimed call each"
     rows.append(_row(f"ours forward_dynamics (batch of {BATCH}, two cores)", float(np.median(two["ours"])),
                      "per state", note=note2))
     rows.append(_row(f"Pinocchio abaInParallel (C++, {BATCH} states, 2 threads)", float(np.median(two["pin"])),
