@@ -103,7 +103,7 @@ def origin_params_check(params, name: str) -> None:
         return
     m, _, j = unpack_params(p)
     if not m > 0:
-        raise InertiaError(f"{name}: mass must be positive, got {m!r}")
+        raise InertiaError(f"{name}: mass must be positive, got {float(m)!r}")
     m, c, i_com = com_params(p)
     # the shift to the centre of mass cancels terms of size |J| + m |c|^2: allow its rounding (a point-like link far
     # from its joint is otherwise judged on round-off, e.g. iCub's 1.3 kg shank with a 1e-18 tensor)
