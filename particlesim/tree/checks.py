@@ -33,17 +33,17 @@ def _links_physical(inertia):
     by :func:`~.model.origin_params_check`'s conditions and tolerances (the shift to the centre of mass allowed its
     rounding). Traceable (no derivative passes through it); NumPy in, NumPy out."""
     xp = xp_of(inertia)
-    p = xp.asarray(inertia, dtype=float)
+    p = xp.asarray(inertia)
     if xp is not np:
         p = jax.lax.stop_gradient(p)
     zero = xp.all(p == 0.0, axis=-1)
-    safe = xp.where(zero[..., None], _UNIT, p)
+    safe = xp.where(zero[..., None], xp.asarray(_UNIT, dtype=p.dtype), p)
     m, h, j = unpack_params(safe)
     c = h / xp.where(m == 0.0, 1.0, m)[..., None]  # a zero mass is refused below (m > 0): no 0/0 on the way
     cc = xp.sum(c * c, axis=-1)
     shift = cc[..., None, None] * xp.broadcast_to(xp.eye(3), j.shape) - c[..., :, None] * c[..., None, :]
     i_com = j - m[..., None, None] * shift
-    rounding = 16 * np.finfo(float).eps * (xp.abs(xp.trace(j, axis1=-2, axis2=-1)) + m * cc)
+    rounding = 16 * np.finfo(p.dtype).eps * (xp.abs(xp.trace(j, axis1=-2, axis2=-1)) + m * cc)  # (float32 too)
     return zero | (physical_inertia(m, i_com, rounding) & xp.all(xp.isfinite(p), axis=-1))
 
 
