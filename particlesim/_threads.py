@@ -18,11 +18,44 @@ _lock = threading.Lock()
 
 
 def usable_cores() -> int:
-    """Cores this process may run on (its CPU affinity where the platform tells it, else ``os.cpu_count()``)."""
+    """Cores this process may run on: its CPU affinity where the platform tells it (else ``os.cpu_count()``), at
+    most its control group's CPU quota rounded up (a container started with ``--cpus 2`` on a larger machine)."""
     try:
-        return len(os.sched_getaffinity(0))
+        cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
+        cores = os.cpu_count() or 1
+    quota = _cpu_quota()
+    return max(1, min(cores, quota)) if quota else cores
+
+
+_QUOTA: list = []
+
+
+def _cpu_quota() -> int | None:
+    """The CPU quota of this process's control group in whole cores, rounded up (cgroup v2 ``cpu.max``, v1
+    ``cpu.cfs_quota_us`` / ``cpu.cfs_period_us``); ``None`` when unlimited or unknown. Read once."""
+    if not _QUOTA:
+        _QUOTA.append(_read_quota())
+    return _QUOTA[0]
+
+
+def _read_quota(root: str = "/sys/fs/cgroup") -> int | None:
+    try:
+        with open(f"{root}/cpu.max") as f:
+            quota, period = f.read().split()[:2]
+        if quota != "max":
+            return -(-int(quota) // int(period))
+        return None
+    except (OSError, ValueError):
+        pass
+    try:
+        with open(f"{root}/cpu/cpu.cfs_quota_us") as f:
+            quota = int(f.read())
+        with open(f"{root}/cpu/cpu.cfs_period_us") as f:
+            period = int(f.read())
+        return -(-quota // period) if quota > 0 and period > 0 else None
+    except (OSError, ValueError):
+        return None
 
 
 def pool(workers: int) -> ThreadPoolExecutor:

@@ -130,12 +130,12 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
         threads: on a mesh of one device, a batch passed from Python (concrete arrays, outside any trace) is split
             into this many equal parts, each run by the same compiled program on its own thread, so that every
             core works (XLA:CPU runs a rollout's loop on one core). ``None`` (default): the cores this process may
-            run on (its CPU affinity); 1: one program. Parts are whole multiples of
-            ``chunk`` members (the last part padded with copies of the last member, dropped from the result), so
-            with a ``chunk`` dividing the batch every member sees the operations it sees in one program (a short
-            last chunk is vectorised with the padding instead of alone: equal to round-off); with ``vmap`` (no
-            chunk) the members of a part step together, as on one device of a mesh. Several devices (host devices or
-            GPUs) split the batch over the mesh instead.
+            run on (its CPU affinity, at most its control group's CPU quota); 1: one program. Parts are whole
+            multiples of ``chunk`` members (the last part padded with copies of the last member, dropped from the
+            result), so with a ``chunk`` dividing the batch every member sees the operations it sees in one
+            program (a short last chunk is vectorised with the padding instead of alone: equal to round-off); with
+            ``vmap`` (no chunk) the members of a part step together, as on one device of a mesh. Several devices
+            (host devices or GPUs) split the batch over the mesh instead.
 
     Returns:
         A function of the batched arguments whose outputs carry the batch on their leading axis, split across the
@@ -203,7 +203,8 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
         return run(*args)
 
     call.jit = run  # the compiled program (of one part, or of the whole batch)
-    call.lower = run.lower  # one program over the whole batch (no threads), as jax.jit(...).lower
+    # one program over the whole batch (no threads), as jax.jit(...)'s
+    call.lower, call.trace, call.eval_shape = run.lower, run.trace, run.eval_shape
     functools.update_wrapper(call, fn, assigned=("__doc__",), updated=())
     return call
 

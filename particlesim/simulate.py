@@ -101,10 +101,42 @@ def _check_output_shapes(dynamics, control, params, q0, qd0, t0) -> None:
         _SHAPES_PASSED[key] = True
 
 
+def _is_tree(x) -> bool:
+    return isinstance(x, TreeModel)
+
+
+def _trees(params) -> list[tuple[str, TreeModel]]:
+    """The tree models in ``params`` (itself one, or inside a tuple, dict, module...) with their paths."""
+    if isinstance(params, TreeModel):
+        return [("", params)]
+    flat = jax.tree_util.tree_flatten_with_path(params, is_leaf=_is_tree)[0]
+    return [(jax.tree_util.keystr(path), leaf) for path, leaf in flat if isinstance(leaf, TreeModel)]
+
+
 def _parameter_groups(params) -> list:
-    """``(label, array)`` of the parameters' floating leaves: a tree's as its own entries label them (link by link;
-    soft limits' infinite bounds allowed), any other pytree's by path."""
-    return _tree_groups(params) if isinstance(params, TreeModel) else _ode.leaf_groups(params)
+    """``(label, array)`` of the parameters' floating leaves by path; a tree's (``params`` itself or inside it) as its
+    own entries label them (link by link; soft limits' infinite bounds allowed)."""
+    if isinstance(params, TreeModel):
+        return _tree_groups(params)
+    groups = []
+    for path, leaf in jax.tree_util.tree_flatten_with_path(params, is_leaf=_is_tree)[0]:
+        where = jax.tree_util.keystr(path)
+        if isinstance(leaf, TreeModel):
+            groups += [(f"{where} {label}" if isinstance(label, str) else [f"{where} {x}" for x in label], arr)
+                       for label, arr in _tree_groups(leaf)]
+        elif eqx.is_inexact_array(leaf):
+            groups.append((where or "params", leaf))
+    return groups
+
+
+def _physical_checks(params):
+    """:func:`~particlesim.tree.checks.physical_checks` of every tree in ``params`` (run-time flags), or None."""
+    return _ode.merge_checks(*(physical_checks(t, f"simulate{' ' + w if w else ''}") for w, t in _trees(params)))
+
+
+def _physical_checks_eager(params) -> None:
+    for w, t in _trees(params):
+        physical_checks_eager(t, f"simulate{' ' + w if w else ''}")
 
 
 @_ode.cached("simulate")
@@ -112,7 +144,7 @@ def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, t
               max_events=0, warn=(), check_physical=False) -> Solution:
     # A tree's non-physical values are looked for here only when the eager check could not see them (traced leaves).
     param_bad = _ode.merge_checks(_ode.check_finite("simulate", _parameter_groups(params)),
-                                  physical_checks(params) if check_physical else None)
+                                  _physical_checks(params) if check_physical else None)
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate", "(q0, qd0)")
 
     rate = getattr(params, "configuration_rate", None)
@@ -236,7 +268,7 @@ def simulate(
             non-finite concrete initial state.
         ModelError: q0/qd0 shapes disagree with each other, with ``params.nq`` or with what ``dynamics`` returns;
             a floating parameter is NaN or inf (at run time when traced); for a
-            :class:`~particlesim.tree.TreeModel`, a negative friction level, rotor inertia or joint stiffness, or a
+            :class:`~particlesim.tree.TreeModel` (``params`` or inside it), a negative friction level, rotor inertia or joint stiffness, or a
             soft limit with negative stiffness or damping or crossed bounds (:mod:`particlesim.tree.checks`; at run
             time, by JAX's run-time error, when traced).
         InertiaError: for a ``TreeModel``, a link that is neither massless nor a physical body (a positive mass, an
@@ -251,9 +283,9 @@ def simulate(
     _check_state(params, q0, qd0)
     t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
 
-    tree = isinstance(params, TreeModel)
+    tree = bool(_trees(params))
     concrete = _ode.check_finite_eager("simulate", params, lambda: _parameter_groups(params),  # concrete values, now
-                                       (lambda: physical_checks_eager(params)) if tree else None)
+                                       (lambda: _physical_checks_eager(params)) if tree else None)
     check_physical = tree and not concrete
     _check_output_shapes(dynamics, control, params, q0, qd0, t0_)
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:

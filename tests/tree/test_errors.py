@@ -325,3 +325,39 @@ def test_run_time_link_test_agrees_with_the_constructors_check():
     table = np.stack(rows)
     assert _links_physical(table).tolist() == expected
     assert np.asarray(jax.jit(_links_physical)(jnp.asarray(table))).tolist() == expected
+
+
+def test_trees_inside_the_parameters_are_checked_too():
+    """A tree inside a parameter pytree (here with a controller gain) gets the same checks as one passed alone:
+    infinite soft-limit bounds of a continuous joint accepted, a negative link mass refused before the run and when
+    traced (named with the tree's path), a NaN gain named by its path."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from particlesim.simulate import simulate
+    from particlesim.tree import forward_dynamics
+
+    urdf = _urdf(_joint("j1", "continuous", "base", "a") + _joint("j2", "revolute", "a", "b"))
+    model = load_urdf(urdf, limits="model", limit_stiffness=100.0, limit_damping=1.0)
+    assert np.isinf(np.asarray(model.limits)[0, :2]).all()
+
+    def dynamics(p, q, qd, tau):
+        return forward_dynamics(p["robot"], q, qd, tau)
+
+    def control(t, q, qd, p):
+        return -p["gain"] * qd
+
+    def final(p):
+        return simulate(dynamics, p, jnp.array([0.2, 0.1]), jnp.zeros(2), 0.0, 0.05, control=control).q[-1]
+
+    ok = final({"robot": model, "gain": jnp.asarray(0.5)})
+    assert np.all(np.isfinite(np.asarray(ok)))
+    light = eqx.tree_at(lambda m: m.inertia, model, model.inertia.at[1, 0].set(-1.0))
+    with pytest.raises(InertiaError, match=r"simulate \['robot'\]: link 'b'"):
+        final({"robot": light, "gain": jnp.asarray(0.5)})
+    with pytest.raises(jax.errors.JaxRuntimeError, match=r"simulate \['robot'\]: link 'b' is not physical"):
+        jax.block_until_ready(jax.jit(lambda v: final({"robot": model.with_params(inertia=v),
+                                                       "gain": jnp.asarray(0.5)}))(light.inertia))
+    with pytest.raises(ModelError, match=r"parameter \['gain'\] is not finite"):
+        final({"robot": model, "gain": jnp.asarray(jnp.nan)})
