@@ -19,7 +19,7 @@ _lock = threading.Lock()
 
 def usable_cores() -> int:
     """Cores this process may run on: its CPU affinity where the platform tells it (else ``os.cpu_count()``), at
-    most its control group's CPU quota rounded up (a container started with ``--cpus 2`` on a larger machine)."""
+    most a container's CPU quota rounded up (one started with ``--cpus 2`` on a larger machine; :func:`_cpu_quota`)."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
@@ -32,8 +32,9 @@ _QUOTA: list = []
 
 
 def _cpu_quota() -> int | None:
-    """The CPU quota of this process's control group in whole cores, rounded up (cgroup v2 ``cpu.max``, v1
-    ``cpu.cfs_quota_us`` / ``cpu.cfs_period_us``); ``None`` when unlimited or unknown. Read once."""
+    """The CPU quota at the root of the control-group file system as a container sees it (its own group), in whole
+    cores rounded up (cgroup v2 ``cpu.max``, v1 ``cpu.cfs_quota_us`` / ``cpu.cfs_period_us``); ``None`` when
+    unlimited or unknown (a process in a quota'd group of the host's own hierarchy is not looked up). Read once."""
     if not _QUOTA:
         _QUOTA.append(_read_quota())
     return _QUOTA[0]
@@ -73,10 +74,17 @@ def run_parts(fn: Callable, parts: Sequence[tuple]) -> list:
     after it from other threads: two 0.25 s loops took 0.50-0.54 s that way, 0.25 s the other). A part the pool has
     not started by the time this thread is done is taken back and run here, so that a part whose program calls back
     into Python and starts another batch cannot wait on itself. Exceptions reach the caller."""
+    if len(parts) <= 1:
+        return [fn(*args) for args in parts]
     rest = [pool(len(parts) - 1).submit(fn, *args) for args in parts[1:]]
-    outs = [fn(*parts[0])]
-    for f, args in zip(rest, parts[1:]):
-        outs.append(fn(*args) if f.cancel() else f.result())
+    try:
+        outs = [fn(*parts[0])]
+        for f, args in zip(rest, parts[1:]):
+            outs.append(fn(*args) if f.cancel() else f.result())
+    except BaseException:
+        for f in rest:  # parts not started yet are dropped; running ones finish on their own
+            f.cancel()
+        raise
     return outs
 
 

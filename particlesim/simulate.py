@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import inspect
 import types
+import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -122,11 +123,16 @@ def _parameter_groups(params) -> list:
     for path, leaf in jax.tree_util.tree_flatten_with_path(params, is_leaf=_is_tree)[0]:
         where = jax.tree_util.keystr(path)
         if isinstance(leaf, TreeModel):
-            groups += [(f"{where} {label}" if isinstance(label, str) else [f"{where} {x}" for x in label], arr)
+            groups += [(_joined(where, label) if isinstance(label, str) else [_joined(where, x) for x in label], arr)
                        for label, arr in _tree_groups(leaf)]
         elif eqx.is_inexact_array(leaf):
             groups.append((where or "params", leaf))
     return groups
+
+
+def _joined(where: str, label: str) -> str:
+    """A tree's own label under its path: ``['robot'].limits``, ``['robot'] inertia of link 'b'``."""
+    return where + label if label[:1] in ".[" else f"{where} {label}"
 
 
 def _physical_checks(params):
@@ -134,9 +140,22 @@ def _physical_checks(params):
     return _ode.merge_checks(*(physical_checks(t, f"simulate{' ' + w if w else ''}") for w, t in _trees(params)))
 
 
+#: Trees that passed :func:`_physical_checks_eager`: ``id -> (weak reference, leaves then)`` (a tree inside a dict
+#: of parameters, which cannot be remembered as a whole, is checked once while it lives).
+_TREES_PASSED: dict = {}
+
+
 def _physical_checks_eager(params) -> None:
     for w, t in _trees(params):
+        leaves = jax.tree.leaves(t)
+        seen = _TREES_PASSED.get(id(t))
+        if seen is not None and seen[0]() is t and len(seen[1]) == len(leaves) and all(
+                a is b for a, b in zip(leaves, seen[1])):
+            continue
         physical_checks_eager(t, f"simulate{' ' + w if w else ''}")
+        if all(type(leaf) is _ode._ArrayImpl for leaf in leaves):  # immutable leaves: remembered
+            key = id(t)
+            _TREES_PASSED[key] = (weakref.ref(t, lambda _, key=key: _TREES_PASSED.pop(key, None)), tuple(leaves))
 
 
 @_ode.cached("simulate")
@@ -268,9 +287,10 @@ def simulate(
             non-finite concrete initial state.
         ModelError: q0/qd0 shapes disagree with each other, with ``params.nq`` or with what ``dynamics`` returns;
             a floating parameter is NaN or inf (at run time when traced); for a
-            :class:`~particlesim.tree.TreeModel` (``params`` or inside it), a negative friction level, rotor inertia or joint stiffness, or a
-            soft limit with negative stiffness or damping or crossed bounds (:mod:`particlesim.tree.checks`; at run
-            time, by JAX's run-time error, when traced).
+            :class:`~particlesim.tree.TreeModel` (``params``, or inside it: its checks and labels only; events,
+            ``configuration_rate`` and quaternion checks need ``params`` to be the model), a negative friction
+            level, rotor inertia or joint stiffness, or a soft limit with negative stiffness or damping or crossed
+            bounds (:mod:`particlesim.tree.checks`; at run time, by JAX's run-time error, when traced).
         InertiaError: for a ``TreeModel``, a link that is neither massless nor a physical body (a positive mass, an
             inertia about its centre of mass symmetric, positive semi-definite and within the triangle
             inequalities), or a joint that moves no mass (at run time when traced; a model loaded with
@@ -283,10 +303,9 @@ def simulate(
     _check_state(params, q0, qd0)
     t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
 
-    tree = bool(_trees(params))
     concrete = _ode.check_finite_eager("simulate", params, lambda: _parameter_groups(params),  # concrete values, now
-                                       (lambda: _physical_checks_eager(params)) if tree else None)
-    check_physical = tree and not concrete
+                                       lambda: _physical_checks_eager(params))
+    check_physical = not concrete and bool(_trees(params))  # traced leaves: the trees' checks in the program
     _check_output_shapes(dynamics, control, params, q0, qd0, t0_)
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:
         raise ValueError(f"max_events must be a positive integer, got {max_events!r}")

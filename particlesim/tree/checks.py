@@ -34,6 +34,8 @@ def _links_physical(inertia):
     rounding). Traceable (no derivative passes through it); NumPy in, NumPy out."""
     xp = xp_of(inertia)
     p = xp.asarray(inertia)
+    if not xp.issubdtype(p.dtype, xp.floating):  # integers set by hand: judged as floats
+        p = p.astype(float)
     if xp is not np:
         p = jax.lax.stop_gradient(p)
     zero = xp.all(p == 0.0, axis=-1)
@@ -43,7 +45,7 @@ def _links_physical(inertia):
     cc = xp.sum(c * c, axis=-1)
     shift = cc[..., None, None] * xp.broadcast_to(xp.eye(3), j.shape) - c[..., :, None] * c[..., None, :]
     i_com = j - m[..., None, None] * shift
-    rounding = 16 * np.finfo(p.dtype).eps * (xp.abs(xp.trace(j, axis1=-2, axis2=-1)) + m * cc)  # (float32 too)
+    rounding = 16 * jnp.finfo(p.dtype).eps * (xp.abs(xp.trace(j, axis1=-2, axis2=-1)) + m * cc)  # (float32 too)
     return zero | (physical_inertia(m, i_com, rounding) & xp.all(xp.isfinite(p), axis=-1))
 
 

@@ -541,7 +541,8 @@ def test_batches_split_over_threads(small_tree, threads, monkeypatch):
     assert sorted(s for _, s in ran) == [min(i * count, 70 - count) for i in range(parts)]
     main = threading.current_thread().name
     assert [t for t, s in ran if s == 0] == [main]  # the first part on this thread, others on the pool's
-    assert any(t.startswith("particlesim-batch") for t, _ in ran)
+    if threads <= 3:  # (with 24 parts the caller may take back parts the pool has not started: allowed)
+        assert any(t.startswith("particlesim-batch") for t, _ in ran)
     assert max_rel(out, whole) <= SAME_RTOL
 
     def by_state(model):

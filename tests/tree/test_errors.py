@@ -361,3 +361,7 @@ def test_trees_inside_the_parameters_are_checked_too():
                                                        "gain": jnp.asarray(0.5)}))(light.inertia))
     with pytest.raises(ModelError, match=r"parameter \['gain'\] is not finite"):
         final({"robot": model, "gain": jnp.asarray(jnp.nan)})
+    with pytest.raises(ModelError, match=r"parameter \['robot'\]\.gravity is not finite"):
+        final({"robot": model.with_params(gravity=jnp.array([0.0, jnp.nan, 0.0])), "gain": jnp.asarray(0.5)})
+    with pytest.raises(ModelError, match=r"parameter \['robot'\] inertia of link 'a' is not finite"):
+        final({"robot": model.with_params(inertia=model.inertia.at[0, 5].set(jnp.inf)), "gain": jnp.asarray(0.5)})
