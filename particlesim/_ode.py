@@ -40,7 +40,8 @@ except ImportError:  # pragma: no cover - another JAX layout: nothing is remembe
         pass
 
 __all__ = ["SOLVERS", "IMPLICIT_SOLVERS", "ADJOINTS", "Solution", "Settings", "settings", "integrate", "cached",
-           "TRACES", "check_finite", "leaf_groups", "check_state", "check_times", "runtime_checks", "merge_checks", "as_time"]
+           "TRACES", "check_finite", "leaf_groups", "check_state", "check_times", "runtime_checks", "merge_checks",
+           "as_time"]
 
 #: Adaptive solvers by name. Explicit: Bogacki–Shampine 3(2), Tsitouras 5(4), Dormand–Prince 5(4) and 8(7).
 #: Implicit (L-stable ESDIRK, for stiff friction or stiff springs): Kvaerno 3(2), 4(3), 5(4).
@@ -288,23 +289,36 @@ def check_finite_eager(entry: str, model, groups: Callable[[], list], more: Call
     about 0.1 ms, a fifth of a short rollout's call. NumPy leaves (mutable in place) and traced ones are checked on
     every call."""
     leaves = jax.tree.leaves(model)
-    seen = _PASSED.get(id(model))
-    if seen is not None and seen[0]() is model and len(seen[1]) == len(leaves) and all(
-            a is b for a, b in zip(leaves, seen[1])):
+    if remembered(_PASSED, model, leaves):
         return True
     check_finite(entry, groups())
     concrete = all(_concrete(leaf) for leaf in leaves)
     if more is not None and concrete:
         more()
+    remember(_PASSED, model, leaves)
+    return concrete
+
+
+def remembered(store: dict, obj, leaves: list) -> bool:
+    """Whether ``obj``, with the very same ``leaves`` (``jax.tree.leaves(obj)``), passed a check kept in
+    ``store`` (:func:`remember`)."""
+    seen = store.get(id(obj))
+    return seen is not None and seen[0]() is obj and len(seen[1]) == len(leaves) and all(
+        a is b for a, b in zip(leaves, seen[1]))
+
+
+def remember(store: dict, obj, leaves: list) -> None:
+    """Keep in ``store`` that ``obj`` passed a check, while it lives, if its array leaves are immutable (concrete
+    JAX arrays; other leaves static): NumPy or traced leaves, or an object that cannot be weakly referenced (a
+    dict), are checked on every call."""
     if all(type(leaf) is _ArrayImpl or not isinstance(leaf, (np.ndarray, jax.Array, jax.core.Tracer))
            for leaf in leaves):
-        key = id(model)
+        key = id(obj)
         try:
-            ref = weakref.ref(model, lambda _, key=key: _PASSED.pop(key, None))
-        except TypeError:  # not weakly referenceable: checked every call
-            return concrete
-        _PASSED[key] = (ref, tuple(leaves))
-    return concrete
+            ref = weakref.ref(obj, lambda _, key=key: store.pop(key, None))
+        except TypeError:  # not weakly referenceable
+            return
+        store[key] = (ref, tuple(leaves))
 
 
 def leaf_groups(params: Any) -> list[tuple[str, Array]]:

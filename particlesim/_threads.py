@@ -88,8 +88,8 @@ def run_parts(fn: Callable, parts: Sequence[tuple]) -> list:
     return outs
 
 
-def threads_apply() -> bool:
-    """Whether a batch may be split over threads here: JAX's default backend is the CPU (on a GPU the parts would
-    run one after another) and ``jax.disable_jit`` is off (a thread-local setting the pool's threads would not
-    see)."""
-    return not jax.config.jax_disable_jit and jax.default_backend() == "cpu"
+def threads_apply(platform: str | None = None) -> bool:
+    """Whether a batch may be split over threads here: its devices' ``platform`` (default: JAX's default backend)
+    is the CPU (on a GPU the parts would run one after another) and ``jax.disable_jit`` is off (a thread-local
+    setting the pool's threads would not see)."""
+    return not jax.config.jax_disable_jit and (platform or jax.default_backend()) == "cpu"

@@ -32,7 +32,7 @@ from jax.sharding import Mesh, PartitionSpec as P
 
 from . import _xla
 from ._ode import _ArrayImpl
-from ._threads import run_parts, usable_cores
+from ._threads import run_parts, threads_apply, usable_cores
 
 __all__ = ["AXIS", "batch_mesh", "stack", "param_axes", "sharded_vmap"]
 
@@ -185,7 +185,7 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
 
     def call(*args):
         parts = 1
-        if ndev == 1 and _xla.top_level() and mesh.devices.flat[0].platform == "cpu" and not _jit_disabled():
+        if ndev == 1 and _xla.top_level() and threads_apply(mesh.devices.flat[0].platform):
             parts = usable_cores() if threads is None else int(threads)
         if parts > 1:
             leaves, treedef = jax.tree.flatten(args)
@@ -208,10 +208,6 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
     call.lower, call.trace, call.eval_shape = run.lower, run.trace, run.eval_shape
     functools.update_wrapper(call, fn, assigned=("__doc__",), updated=())
     return call
-
-
-def _jit_disabled() -> bool:
-    return bool(jax.config.jax_disable_jit)
 
 
 def _in_parts(run, leaves, treedef, axes, b: int, per: int, parts: int):

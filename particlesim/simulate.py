@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import inspect
 import types
-import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -148,14 +147,9 @@ _TREES_PASSED: dict = {}
 def _physical_checks_eager(params) -> None:
     for w, t in _trees(params):
         leaves = jax.tree.leaves(t)
-        seen = _TREES_PASSED.get(id(t))
-        if seen is not None and seen[0]() is t and len(seen[1]) == len(leaves) and all(
-                a is b for a, b in zip(leaves, seen[1])):
-            continue
-        physical_checks_eager(t, f"simulate{' ' + w if w else ''}")
-        if all(type(leaf) is _ode._ArrayImpl for leaf in leaves):  # immutable leaves: remembered
-            key = id(t)
-            _TREES_PASSED[key] = (weakref.ref(t, lambda _, key=key: _TREES_PASSED.pop(key, None)), tuple(leaves))
+        if not _ode.remembered(_TREES_PASSED, t, leaves):
+            physical_checks_eager(t, f"simulate{' ' + w if w else ''}")
+            _ode.remember(_TREES_PASSED, t, leaves)
 
 
 @_ode.cached("simulate")

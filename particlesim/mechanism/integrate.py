@@ -199,7 +199,7 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
     # Non-physical values are looked for here only when the eager check could not see them (traced leaves): the
     # bodies' test costs ~40 us per call (a 3 x 3 eigendecomposition per body), a tenth of a one-step rollout.
     param_bad = _ode.merge_checks(_ode.check_finite("simulate_mechanism", parameter_groups(mech)),
-                              physical_checks(mech) if check_physical else None)
+                                  physical_checks(mech) if check_physical else None)
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate_mechanism", "(q0, qd0)")
     plan = chain_plan(mech) if solve == "chain" else None
     # The chain path needs only the bodies' mass blocks; the dense path its prepared constants (Prepared).

@@ -502,9 +502,11 @@ class TreeModel(eqx.Module):
         positive semi-definite tensor within the triangle inequalities), array leaves are not (every entry refuses
         non-finite ones). Unknown leaves, links or fields, and a leaf of another shape than the model's, raise
         :class:`ModelError`."""
-        n = self.n_joints  # the parameter leaves, each with one model's shape (behind leading axes of stacked models)
-        shapes = {"inertia": (n, 10), "origin_xyz": (n, 3), "gravity": (3,), "viscous": (n,), "coulomb": (n,),
-                  "rotor_inertia": (n,), "stiffness": (self.nv,), "spring_ref": (self.nq,), "limits": (self.nv, 4)}
+        # the parameter leaves, each with one model's shape (behind leading axes of stacked models): per link, or per
+        # velocity coordinate (nv: a free joint has six, a mimic joint none)
+        n, nv = self.n_joints, self.nv
+        shapes = {"inertia": (n, 10), "origin_xyz": (n, 3), "gravity": (3,), "viscous": (nv,), "coulomb": (nv,),
+                  "rotor_inertia": (nv,), "stiffness": (nv,), "spring_ref": (self.nq,), "limits": (nv, 4)}
         for k, v in changes.items():
             if k not in shapes:
                 raise ModelError(f"with_params: {k!r} is not a parameter leaf (one of {tuple(shapes)})")

@@ -11,9 +11,9 @@ import pytest
 from particlesim import _ode
 from particlesim.errors import ModelError
 from particlesim.simulate import simulate
-from particlesim.tree import (TreeModel, bias_forces, christoffel_symbols, forward_dynamics, gravity_torques,
-                              inverse_dynamics, kinetic_energy, link_jacobian, link_poses, mass_matrix,
-                              potential_energy)
+from particlesim.tree import (TreeModel, bias_forces, christoffel_symbols, forward_dynamics, friction_torques,
+                              gravity_torques, inverse_dynamics, kinetic_energy, link_jacobian, link_poses,
+                              mass_matrix, potential_energy)
 from particlesim.io import load_urdf
 from tree_helpers import batched_terms, max_rel, random_tree_urdf, states
 
@@ -175,6 +175,17 @@ def test_floating_arm_against_a_mujoco_free_joint():
 
 def test_floating_base_input_errors():
     model = load_urdf(ARM, floating_base=True, limits="ignore")
+    # joint-space leaves have one entry per velocity coordinate (7 here: six for the root, one for the arm), the
+    # per-link ones one per link (2): with_params takes those shapes and refuses the other
+    rng = np.random.default_rng(3)
+    c = rng.uniform(0.1, 1.0, model.nv)
+    qd = rng.normal(size=model.nv)
+    damped = model.with_params(viscous=c)
+    np.testing.assert_allclose(np.asarray(friction_torques(damped, qd)), c * qd, rtol=1e-15)
+    with pytest.raises(ModelError, match=r"with_params: viscous must have shape \(7,\)"):
+        model.with_params(viscous=np.zeros(model.n_joints))
+    with pytest.raises(ModelError, match=r"with_params: inertia must have shape \(2, 10\)"):
+        model.with_params(inertia=np.zeros((model.nv, 10)))
     with pytest.raises(ModelError, match=r"q must have shape \(8,\) \(one entry per configuration entry"):
         forward_dynamics(model, np.zeros(7), np.zeros(7), np.zeros(7))
     with pytest.raises(ModelError, match=r"qd must have shape \(7,\)"):
