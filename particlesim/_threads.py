@@ -70,8 +70,9 @@ def pool(workers: int) -> ThreadPoolExecutor:
 
 def run_parts(fn: Callable, parts: Sequence[tuple]) -> list:
     """``[fn(*args) for args in parts]``, the first on this thread and the others on a kept pool's threads, handed
-    over before this thread starts its own (a program dispatched asynchronously first held back those dispatched
-    after it from other threads: two 0.25 s loops took 0.50-0.54 s that way, 0.25 s the other). A part the pool has
+    over before this thread starts its own (a program dispatched asynchronously first once held back those dispatched
+    after it from other threads: two 0.25 s loops took 0.50-0.54 s that way, 0.25 s the other; not seen with jaxlib
+    0.10.2, where either order runs them side by side, so the order is kept as harmless). A part the pool has
     not started by the time this thread is done is taken back and run here, so that a part whose program calls back
     into Python and starts another batch cannot wait on itself. Exceptions reach the caller."""
     if len(parts) <= 1:

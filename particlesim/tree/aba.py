@@ -183,10 +183,11 @@ PART_LINK_STATES = 2048
 def batch_parts(size: int, n_links: int) -> int:
     """How many parts, one per thread, a batch of ``size`` states of a tree of ``n_links`` links passed from Python
     is evaluated in (:func:`~.dynamics.forward_dynamics`): one per usable core (:data:`BATCH_THREADS`), as far as
-    each part keeps :data:`PART_LINK_STATES` link-states. XLA:CPU runs the batched sweeps on one core (its
-    operations are too small for its own thread pool), so a second core is only used by a second program running
-    beside the first. Krang, 1024 states, two cores, per state (median of 25 interleaved laps): 7.6 us as one
-    program, 3.7 us in two parts on two threads, against ``abaInParallel``'s 3.4 us on two threads."""
+    each part keeps :data:`PART_LINK_STATES` link-states. One batched program gains nothing from a second core
+    (XLA's runtime hands its small kernels between the threads of its pool: Krang's part of 512 states keeps 1.35
+    cores busy and runs no faster than on one), so the second core is used by a second program beside the first.
+    Krang, 1024 states, two cores, per state (median of 25 interleaved laps): 7.6 us as one program, 3.7 us in two
+    parts on two threads, against ``abaInParallel``'s 3.4 us on two threads."""
     threads = usable_cores() if BATCH_THREADS is None else BATCH_THREADS
     return max(1, min(threads, size * max(1, n_links) // PART_LINK_STATES))
 

@@ -396,8 +396,7 @@ def _in_parts(model: TreeModel, q, qd, tau, smooth_friction, size: int, parts: i
 
 def _run(entry, *args):
     """One part, dispatched and waited for on its thread. The pool's parts are handed over before this thread
-    dispatches its own: a program dispatched asynchronously first held back those dispatched after it from other
-    threads (two 0.25 s loops: 0.50-0.54 s that way, 0.25 s with the other threads' first). Concurrent first calls
+    dispatches its own (:func:`particlesim._threads.run_parts` says why). Concurrent first calls
     compile once (JAX waits for a compile in flight; :class:`particlesim._xla.TopJit` builds its jit under a lock)."""
     return jax.block_until_ready(entry(*args))
 

@@ -1,0 +1,341 @@
+"""Where the time of short programs goes on the CPU: sampled profiles of four workloads while they loop (Linux
+``perf``, when the machine has it), and two timing decompositions without a profiler.
+
+Workloads, each in a fresh process, warmed up (compiled, a few calls), then sampled for :data:`SAMPLE_S` seconds:
+
+* ``chain``: the 4-link revolute chain's 2 s rollout at its headline setting (``wp_chains``: Dopri8, rtol 5e-5);
+* ``krang batch, 1 thread`` / ``2 threads``: ``forward_dynamics`` on 1024 Krang states
+  (``particlesim.tree.aba.BATCH_THREADS`` 1, and the default: one part per core);
+* ``quarter cars``: 256 quarter-car rollouts one after another on one thread (``mechanism_engine``'s batch member:
+  Tsit5, rtol 4e-3).
+
+Samples are grouped by where the sampled instruction lies: compiled kernels (XLA's generated code), YNNPACK kernels
+(``ynn::``/``slinky::`` in jaxlib), BLAS/LAPACK (OpenBLAS, called by JAX's LAPACK kernels for Cholesky factors and
+triangular solves), XLA's runtime (the rest of jaxlib: the thunk executor, its thread pool, buffers, dispatch), the
+OS kernel (thread switches), libc (malloc/free, memset, memcpy) and Python; "cores busy" is samples / (rate x
+seconds).
+
+Decompositions (interleaved laps, medians):
+
+* ``chain``: run time against accepted + rejected steps (t1 from 1e-3 to 2 s), fitted as fixed + per step by least
+  squares; the Python before dispatch alone (the compiled call replaced by a no-op).
+* ``krang parts``: one part of 512 states alone, and two such parts run at once on two threads (as
+  ``forward_dynamics`` splits 1024 states on two cores); efficiency = alone / together (1.0: the second core
+  doubles the throughput), with the cores each keeps busy (the process's CPU time over wall time).
+
+Run: ``python -m benchmarks.anatomy``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import particlesim  # noqa: F401  (float64)
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._common import RESULTS, environment
+
+NAME = "anatomy"
+SAMPLE_S = 8.0
+RATE_HZ = 999
+LAPS = 15
+CHAIN_T1 = (1e-3, 0.05, 0.3, 1.0, 2.0)
+CHAIN_SETTING = {"solver": "dopri8", "rtol": 5e-5, "atol": 5e-7}
+KRANG_URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
+QC_MEMBERS, QC_RTOL = 256, 4e-3
+GROUPS = ("compiled kernels", "YNNPACK kernels", "BLAS/LAPACK", "XLA runtime", "OS kernel", "libc", "Python",
+          "other")
+
+_WORKLOAD = r"""
+import sys, time
+import particlesim
+import jax, jax.numpy as jnp, numpy as np
+which = sys.argv[1]
+if which == "chain":
+    from particlesim.mechanism import simulate_mechanism
+    from particlesim.scenes.chains import chain_geometry, chain_mechanism
+    mech, x0 = chain_mechanism(chain_geometry(4, "revolute", seed=4))
+    def call():
+        s = simulate_mechanism(mech, x0, 0 * x0, 0.0, 2.0, solver="dopri8", rtol=5e-5, atol=5e-7, max_steps=200_000)
+        jax.block_until_ready(s.q)
+elif which.startswith("krang"):
+    import particlesim.tree.aba as aba
+    from particlesim.data import data_dir
+    from particlesim.io import load_urdf
+    from particlesim.tree import forward_dynamics
+    model = load_urdf(data_dir() / sys.argv[2], gravity=(0.0, -9.81, 0.0), limits="ignore")
+    aba.BATCH_THREADS = 1 if which == "krang1" else None
+    rng = np.random.default_rng(0)
+    q, qd, tau = (jnp.asarray(rng.uniform(-1, 1, (1024, model.nv))) for _ in range(3))
+    def call():
+        jax.block_until_ready(forward_dynamics(model, q, qd, tau))
+else:
+    sys.path.insert(0, sys.argv[3])
+    from particlesim.batch import sharded_vmap
+    from benchmarks.mechanism_engine import _batch_member, qc
+    mech, x0 = qc.quarter_car()
+    member = _batch_member(mech, jnp.asarray(x0))
+    th = jnp.asarray(np.random.default_rng(0).uniform(0.8, 1.2, size=(int(sys.argv[4]), 9)))
+    fn = sharded_vmap(lambda t: member(t, float(sys.argv[5]), "tsit5"), chunk=1, threads=1)
+    def call():
+        jax.block_until_ready(fn(th))
+for _ in range(3):
+    call()
+print("READY", flush=True)
+while True:
+    call()
+"""
+
+WORKLOADS = {"chain": "the 4-link chain's 2 s rollout (Dopri8, rtol 5e-5)",
+             "krang1": "Krang forward dynamics, 1024 states, 1 thread",
+             "krang2": "Krang forward dynamics, 1024 states, 2 threads (parts)",
+             "quarter": f"{QC_MEMBERS} quarter-car rollouts one after another, 1 thread (Tsit5, rtol {QC_RTOL:g})"}
+
+
+def _group(dso: str, sym: str) -> str:
+    if dso.startswith("[JIT]"):
+        return "compiled kernels"
+    if "libjax_common" in dso:
+        return "YNNPACK kernels" if sym.startswith(("ynn::", "slinky::", "ynn_")) else "XLA runtime"
+    if "openblas" in dso or "_lapack" in dso or "cython_blas" in dso or "cython_lapack" in dso:
+        return "BLAS/LAPACK"
+    if dso.startswith("[kernel"):
+        return "OS kernel"
+    if dso.startswith("libc.") or dso.startswith("libc-"):
+        return "libc"
+    if "libpython" in dso or dso.startswith("python"):
+        return "Python"
+    return "other"
+
+
+def _profile(which: str, perf: str) -> dict:
+    """Sample one workload's process while it loops; returns the groups' shares and the cores it kept busy."""
+    args = [sys.executable, "-c", _WORKLOAD, which, KRANG_URDF, str(RESULTS.parent.parent), str(QC_MEMBERS),
+            str(QC_RTOL)]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        line = proc.stdout.readline()
+        if not line.startswith("READY"):
+            raise RuntimeError(f"anatomy: workload {which} did not start ({line!r})")
+        with tempfile.TemporaryDirectory() as tmp:
+            data = os.path.join(tmp, "perf.data")
+            subprocess.run([perf, "record", "-F", str(RATE_HZ), "-p", str(proc.pid), "-o", data, "--", "sleep",
+                            str(SAMPLE_S)], check=True, capture_output=True)
+            report = subprocess.run([perf, "report", "-i", data, "--stdio", "--no-children", "-n", "-g", "none",
+                                     "--sort", "dso,sym", "--field-separator=;"], check=True, capture_output=True,
+                                    text=True).stdout
+    finally:
+        proc.kill()
+        proc.wait()
+    groups = dict.fromkeys(GROUPS, 0)
+    top = []
+    total = 0
+    for row in report.splitlines():
+        if not row.strip() or row.lstrip().startswith("#"):
+            continue
+        parts = row.split(";")
+        if len(parts) < 4:
+            continue
+        try:
+            n = int(parts[1])
+        except ValueError:
+            continue
+        dso, sym = parts[2].strip(), parts[3].strip()
+        sym = sym[4:] if sym[:1] == "[" and sym[2:4] == "] " else sym
+        groups[_group(dso, sym)] += n
+        total += n
+        top.append((n, dso, sym))
+    top.sort(reverse=True)
+    return {"samples": total, "cores_busy": total / (RATE_HZ * SAMPLE_S),
+            "share": {g: groups[g] / total for g in GROUPS} if total else {},
+            "top": [{"share": n / total, "dso": d, "symbol": s[:90]} for n, d, s in top[:12]]}
+
+
+def _chain_decomposition() -> dict:
+    import particlesim.mechanism.integrate as integrate
+    from particlesim.mechanism import simulate_mechanism
+    from particlesim.scenes.chains import chain_geometry, chain_mechanism
+
+    mech, x0 = chain_mechanism(chain_geometry(4, "revolute", seed=4))
+    xd0 = jnp.zeros_like(x0)
+
+    def run(t1):
+        s = simulate_mechanism(mech, x0, xd0, 0.0, t1, max_steps=200_000, **CHAIN_SETTING)
+        jax.block_until_ready(s.q)
+        return s
+
+    steps = [int(s.steps) + int(s.rejected) for s in (run(t1) for t1 in CHAIN_T1)]
+    real = integrate._simulate
+
+    def prelude():
+        integrate._simulate = lambda *a, **k: None
+        try:
+            simulate_mechanism(mech, x0, xd0, 0.0, 2.0, max_steps=200_000, **CHAIN_SETTING)
+        finally:
+            integrate._simulate = real
+
+    times = {t1: [] for t1 in CHAIN_T1}
+    pre = []
+    for _ in range(LAPS):
+        for t1 in CHAIN_T1:
+            for _ in range(3):
+                t = time.perf_counter()
+                run(t1)
+                times[t1].append(time.perf_counter() - t)
+        for _ in range(3):
+            t = time.perf_counter()
+            prelude()
+            pre.append(time.perf_counter() - t)
+    med = [statistics.median(times[t1]) for t1 in CHAIN_T1]
+    fixed, per_step = np.linalg.lstsq(np.vstack([np.ones(len(steps)), steps]).T, np.asarray(med), rcond=None)[0]
+    return {"t1_s": list(CHAIN_T1), "steps": steps, "median_s": med, "fixed_s": float(fixed),
+            "per_step_s": float(per_step), "python_before_dispatch_s": statistics.median(pre)}
+
+
+def _krang_parts() -> dict:
+    import resource
+
+    from particlesim._threads import run_parts
+    from particlesim.data import data_dir
+    from particlesim.io import load_urdf
+    from particlesim.tree import dynamics
+
+    model = load_urdf(data_dir() / KRANG_URDF, gravity=(0.0, -9.81, 0.0), limits="ignore")
+    rng = np.random.default_rng(0)
+    q, qd, tau = (jnp.asarray(rng.uniform(-1, 1, (1024, model.nv))) for _ in range(3))
+    starts = [jnp.asarray(0, jnp.int32), jnp.asarray(512, jnp.int32)]
+
+    def part(s):
+        return jax.block_until_ready(dynamics._batched_part(model, q, qd, tau, s, False, 512))
+
+    runs = {"alone": lambda: part(starts[0]), "together": lambda: run_parts(part, [(s,) for s in starts])}
+    for fn in runs.values():
+        fn()
+        fn()
+    laps = {k: [] for k in runs}
+    busy = {k: [] for k in runs}
+    names = list(runs)
+    for lap in range(LAPS):
+        for name in names[lap % 2:] + names[:lap % 2]:
+            r0, t = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+            for _ in range(3):
+                runs[name]()
+            wall, r1 = time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF)
+            laps[name].append(wall / 3)
+            busy[name].append((r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime) / wall)
+    alone, together = statistics.median(laps["alone"]), statistics.median(laps["together"])
+    return {"alone_s": alone, "together_s": together, "efficiency": alone / together,
+            "cores_busy_alone": statistics.median(busy["alone"]),
+            "cores_busy_together": statistics.median(busy["together"]),
+            "efficiency_quartiles": [float(x) for x in np.percentile(
+                np.asarray(laps["alone"]) / np.asarray(laps["together"]), [25, 75])]}
+
+
+def run() -> dict:
+    t0 = time.perf_counter()
+    perf = shutil.which("perf")
+    profiles, why = {}, None
+    if perf is None:
+        why = "no `perf` on this machine"
+    else:
+        try:
+            for which in WORKLOADS:
+                print("profiling", which, flush=True)
+                profiles[which] = _profile(which, perf)
+        except (subprocess.CalledProcessError, RuntimeError, OSError) as e:
+            profiles, why = {}, f"perf failed: {e}"
+    print("chain decomposition", flush=True)
+    chain = _chain_decomposition()
+    print("krang parts", flush=True)
+    parts = _krang_parts()
+    return {"benchmark": NAME, "environment": environment(), "workloads": WORKLOADS, "profiles": profiles,
+            "profiles_missing": why, "sample_s": SAMPLE_S, "rate_hz": RATE_HZ, "chain": chain, "krang_parts": parts,
+            "wall_s": time.perf_counter() - t0}
+
+
+def write(results: dict) -> None:
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f"{NAME}.json").write_text(json.dumps(results, indent=2) + "\n")
+    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["workload", "group", "share", "cores_busy"])
+        for which, p in results["profiles"].items():
+            for g, s in p["share"].items():
+                w.writerow([which, g, s, p["cores_busy"]])
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.8), gridspec_kw={"width_ratios": [3, 2]})
+    names = list(results["profiles"])
+    left = np.zeros(len(names))
+    for g in GROUPS:
+        vals = np.asarray([results["profiles"][n]["share"][g] * 100 for n in names])
+        a1.barh(names, vals, left=left, label=g)
+        left += vals
+    a1.set_xlabel("% of samples")
+    a1.legend(fontsize=7, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.22))
+    a1.set_title(f"perf samples by where they fall ({results['environment']['cpu']})", fontsize=9)
+    c = results["chain"]
+    a2.plot(c["steps"], np.asarray(c["median_s"]) * 1e3, "o", label="4-link chain, median run")
+    xs = np.asarray([0, max(c["steps"])])
+    a2.plot(xs, (c["fixed_s"] + c["per_step_s"] * xs) * 1e3, "-",
+            label=f"fit: {c['fixed_s'] * 1e6:.0f} µs + {c['per_step_s'] * 1e6:.0f} µs/step")
+    a2.axhline(c["python_before_dispatch_s"] * 1e3, ls=":", color="k", label="Python before dispatch")
+    a2.set_xlabel("steps (accepted + rejected)")
+    a2.set_ylabel("ms")
+    a2.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(RESULTS / f"{NAME}.png", dpi=120)
+    plt.close(fig)
+
+
+def markdown(results: dict) -> str:
+    env = results["environment"]
+    lines = ["### Where the time goes: profiles of short programs", "",
+             f"{env['cpu']}, {env['cpu_count']} cores, {env['date']}; jax {env['versions'].get('jax')}."]
+    if results["profiles"]:
+        lines += [f"`perf` samples at {results['rate_hz']} Hz over {results['sample_s']:g} s of each workload looping "
+                  "(a fresh process each, compiled and warmed first); shares of all samples, and the cores kept busy.",
+                  "", "| workload | cores busy | " + " | ".join(GROUPS) + " |",
+                  "|---|---:|" + "---:|" * len(GROUPS)]
+        for which, p in results["profiles"].items():
+            lines.append(f"| {results['workloads'][which]} | {p['cores_busy']:.2f} | "
+                         + " | ".join(f"{100 * p['share'][g]:.0f} %" for g in GROUPS) + " |")
+    else:
+        lines += ["", f"No profiles: {results['profiles_missing']}."]
+    c, k = results["chain"], results["krang_parts"]
+    lines += ["", f"4-link chain, run time against steps (t1 = {', '.join(f'{t:g}' for t in c['t1_s'])} s: "
+              f"{', '.join(str(s) for s in c['steps'])} steps; medians "
+              f"{', '.join(f'{m * 1e6:.0f}' for m in c['median_s'])} µs): **{c['fixed_s'] * 1e6:.0f} µs fixed + "
+              f"{c['per_step_s'] * 1e6:.0f} µs per Dopri8 step**, of the fixed part "
+              f"{c['python_before_dispatch_s'] * 1e6:.0f} µs of Python before dispatch.", "",
+              f"Krang's batch in parts: one part of 512 states alone {k['alone_s'] * 1e3:.2f} ms keeping "
+              f"{k['cores_busy_alone']:.2f} cores busy; two parts at once on two threads "
+              f"{k['together_s'] * 1e3:.2f} ms "
+              f"({k['cores_busy_together']:.2f} cores): **efficiency {k['efficiency']:.2f}** (lap quartiles "
+              f"{k['efficiency_quartiles'][0]:.2f}–{k['efficiency_quartiles'][1]:.2f}; 1.0 would double the "
+              "throughput).", ""]
+    return "\n".join(lines)
+
+
+def main() -> dict:
+    results = run()
+    write(results)
+    print(markdown(results))
+    return results
+
+
+if __name__ == "__main__":
+    main()
