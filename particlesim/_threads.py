@@ -1,9 +1,12 @@
-"""Threads for batches passed from Python: XLA:CPU runs a batched program's small operations (and a rollout's
-loop) on one core, so a second core is used only by a second program running beside the first. Batch entries
-split a concrete batch into parts and run the same compiled program on each part, one per thread."""
+"""Threads for batches passed from Python: one batched program gains little from a second core (XLA:CPU hands its
+small operations, and a rollout's loop, between the threads of its pool without running faster), so a second core
+is used by a second program running beside the first. Batch entries split a concrete batch into parts and run the
+same compiled program on each part, one per thread; the parts run under the calling thread's JAX settings."""
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import os
 import threading
 from collections.abc import Callable, Sequence
@@ -11,7 +14,7 @@ from collections.abc import Callable, Sequence
 import jax
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["usable_cores", "pool", "run_parts", "threads_apply"]
+__all__ = ["usable_cores", "pool", "run_parts", "threads_apply", "local_settings", "settings_applied"]
 
 _pools: dict[int, ThreadPoolExecutor] = {}
 _lock = threading.Lock()
@@ -74,10 +77,14 @@ def run_parts(fn: Callable, parts: Sequence[tuple]) -> list:
     after it from other threads: two 0.25 s loops took 0.50-0.54 s that way, 0.25 s the other; not seen with jaxlib
     0.10.2, where either order runs them side by side, so the order is kept as harmless). A part the pool has
     not started by the time this thread is done is taken back and run here, so that a part whose program calls back
-    into Python and starts another batch cannot wait on itself. Exceptions reach the caller."""
+    into Python and starts another batch cannot wait on itself. The pool's threads run their parts under the JAX
+    settings this thread has set locally (``jax.default_device``, ``jax.debug_nans``... as context managers:
+    :func:`local_settings`). Exceptions reach the caller."""
     if len(parts) <= 1:
         return [fn(*args) for args in parts]
-    rest = [pool(len(parts) - 1).submit(fn, *args) for args in parts[1:]]
+    settings = local_settings()
+    call = functools.partial(_under, settings, fn) if settings else fn
+    rest = [pool(len(parts) - 1).submit(call, *args) for args in parts[1:]]
     try:
         outs = [fn(*parts[0])]
         for f, args in zip(rest, parts[1:]):
@@ -87,6 +94,49 @@ def run_parts(fn: Callable, parts: Sequence[tuple]) -> list:
             f.cancel()
         raise
     return outs
+
+
+def local_settings() -> tuple:
+    """The JAX settings this thread has set for itself (the context managers ``jax.default_device``,
+    ``jax.debug_nans``, ``jax.numpy_rank_promotion``...), as ``(setting, value)`` pairs for :func:`settings_applied`;
+    empty when none is set, or when this JAX does not expose its settings as the code expects (its ``config_states``
+    and their ``get_local``): then the pool's threads run under the process's settings."""
+    try:
+        from jax._src import config as jax_config
+
+        unset = jax_config.config_ext.unset
+        return tuple((state, value) for state in jax_config.config_states.values()
+                     if (value := state.get_local()) is not unset)
+    except Exception:  # another JAX's internals
+        return ()
+
+
+@contextlib.contextmanager
+def settings_applied(settings: tuple):
+    """Set :func:`local_settings`' pairs on this thread for the block, as JAX's own context managers set them (the
+    thread-local value and its hook), and restore what was there after."""
+    from jax._src import config as jax_config
+
+    unset = jax_config.config_ext.unset
+    entered = []
+    try:
+        for state, value in settings:
+            entered.append((state, state.swap_local(value)))
+            hook = getattr(state, "_update_thread_local_hook", None)
+            if hook:
+                hook(value)
+        yield
+    finally:
+        for state, prev in reversed(entered):
+            state.set_local(prev)
+            hook = getattr(state, "_update_thread_local_hook", None)
+            if hook:
+                hook(None if prev is unset else prev)
+
+
+def _under(settings: tuple, fn: Callable, *args):
+    with settings_applied(settings):
+        return fn(*args)
 
 
 def threads_apply(platform: str | None = None) -> bool:

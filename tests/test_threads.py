@@ -1,7 +1,9 @@
 """Batches split over threads: the core count (affinity and control-group quota) and the parts' runner."""
 
 import os
+import threading
 
+import jax
 import pytest
 
 from particlesim import _threads
@@ -44,3 +46,24 @@ def test_run_parts_returns_in_order_and_raises_a_parts_error():
 
     with pytest.raises(ValueError, match="part 3 failed"):
         _threads.run_parts(part, [(k,) for k in range(4)])
+
+
+def test_pool_parts_run_under_the_callers_local_settings():
+    """Settings made for the calling thread (JAX's context managers) reach the parts run on the pool's threads, and
+    leave them afterwards: a batch split under ``jax.debug_nans`` checks every part, not only the caller's own."""
+    n = 3
+    barrier = threading.Barrier(n, timeout=30)  # every part on its own thread: the pool runs n - 1 of them
+
+    def seen(_):
+        barrier.wait()
+        return threading.current_thread().name, jax.config.jax_debug_nans, jax.config.jax_numpy_rank_promotion
+
+    before = (jax.config.jax_debug_nans, jax.config.jax_numpy_rank_promotion)
+    other = "raise" if before[1] != "raise" else "warn"
+    with jax.debug_nans(not before[0]), jax.numpy_rank_promotion(other):
+        outs = _threads.run_parts(seen, [(k,) for k in range(n)])
+    assert len({name for name, *_ in outs}) == n  # three threads, two of them the pool's
+    assert all(tuple(v) == (not before[0], other) for _, *v in outs)
+    barrier.reset()
+    outs = _threads.run_parts(seen, [(k,) for k in range(n)])
+    assert all(tuple(v) == before for _, *v in outs)  # the pool's threads back to the process's settings
