@@ -36,6 +36,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import particlesim  # noqa: F401  (float64)
@@ -49,6 +50,7 @@ NAME = "anatomy"
 SAMPLE_S = 8.0
 RATE_HZ = 999
 LAPS = 15
+START_TIMEOUT_S = 600.0
 CHAIN_T1 = (1e-3, 0.05, 0.3, 1.0, 2.0)
 CHAIN_SETTING = {"solver": "dopri8", "rtol": 5e-5, "atol": 5e-7}
 KRANG_URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
@@ -65,8 +67,9 @@ if which == "chain":
     from particlesim.mechanism import simulate_mechanism
     from particlesim.scenes.chains import chain_geometry, chain_mechanism
     mech, x0 = chain_mechanism(chain_geometry(4, "revolute", seed=4))
+    solver, rtol, atol = sys.argv[6], float(sys.argv[7]), float(sys.argv[8])
     def call():
-        s = simulate_mechanism(mech, x0, 0 * x0, 0.0, 2.0, solver="dopri8", rtol=5e-5, atol=5e-7, max_steps=200_000)
+        s = simulate_mechanism(mech, x0, 0 * x0, 0.0, 2.0, solver=solver, rtol=rtol, atol=atol, max_steps=200_000)
         jax.block_until_ready(s.q)
 elif which.startswith("krang"):
     import particlesim.tree.aba as aba
@@ -97,8 +100,8 @@ while True:
 """
 
 WORKLOADS = {"chain": "the 4-link chain's 2 s rollout (Dopri8, rtol 5e-5)",
-             "krang1": "Krang forward dynamics, 1024 states, 1 thread",
-             "krang2": "Krang forward dynamics, 1024 states, 2 threads (parts)",
+             "krang1": "Krang forward dynamics, 1024 states, one program",
+             "krang2": "Krang forward dynamics, 1024 states, two parts on two threads",
              "quarter": f"{QC_MEMBERS} quarter-car rollouts one after another, 1 thread (Tsit5, rtol {QC_RTOL:g})"}
 
 
@@ -121,12 +124,16 @@ def _group(dso: str, sym: str) -> str:
 def _profile(which: str, perf: str) -> dict:
     """Sample one workload's process while it loops; returns the groups' shares and the cores it kept busy."""
     args = [sys.executable, "-c", _WORKLOAD, which, KRANG_URDF, str(RESULTS.parent.parent), str(QC_MEMBERS),
-            str(QC_RTOL)]
+            str(QC_RTOL), CHAIN_SETTING["solver"], str(CHAIN_SETTING["rtol"]), str(CHAIN_SETTING["atol"])]
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
-        line = proc.stdout.readline()
-        if not line.startswith("READY"):
-            raise RuntimeError(f"anatomy: workload {which} did not start ({line!r})")
+        ready = []
+        reader = threading.Thread(target=lambda: ready.append(proc.stdout.readline()), daemon=True)
+        reader.start()
+        reader.join(START_TIMEOUT_S)
+        if not ready or not ready[0].startswith("READY"):
+            raise RuntimeError(f"anatomy: workload {which} did not start within {START_TIMEOUT_S:g} s "
+                               f"({ready[0] if ready else 'no output'!r})")
         with tempfile.TemporaryDirectory() as tmp:
             data = os.path.join(tmp, "perf.data")
             subprocess.run([perf, "record", "-F", str(RATE_HZ), "-p", str(proc.pid), "-o", data, "--", "sleep",
@@ -155,51 +162,106 @@ def _profile(which: str, perf: str) -> dict:
         groups[_group(dso, sym)] += n
         total += n
         top.append((n, dso, sym))
+    if not total:
+        raise RuntimeError(f"anatomy: perf recorded no samples of workload {which}")
     top.sort(reverse=True)
     return {"samples": total, "cores_busy": total / (RATE_HZ * SAMPLE_S),
-            "share": {g: groups[g] / total for g in GROUPS} if total else {},
+            "share": {g: groups[g] / total for g in GROUPS},
             "top": [{"share": n / total, "dso": d, "symbol": s[:90]} for n, d, s in top[:12]]}
 
 
+#: Variants of the chain's run whose fixed cost is compared with the headline setting's (two-point fits: t1 = 1e-3
+#: and 2 s): another solver, no projection, the initial step given (no initial step selection).
+CHAIN_VARIANTS = {"tsit5": {"solver": "tsit5"}, "no projection": {"stabilise": False}, "dt0 given": {"dt0": 1e-3}}
+
+
 def _chain_decomposition() -> dict:
-    import particlesim.mechanism.integrate as integrate
+    import particlesim._xla as xla
     from particlesim.mechanism import simulate_mechanism
     from particlesim.scenes.chains import chain_geometry, chain_mechanism
 
     mech, x0 = chain_mechanism(chain_geometry(4, "revolute", seed=4))
     xd0 = jnp.zeros_like(x0)
 
-    def run(t1):
-        s = simulate_mechanism(mech, x0, xd0, 0.0, t1, max_steps=200_000, **CHAIN_SETTING)
+    def run(t1, **change):
+        s = simulate_mechanism(mech, x0, xd0, 0.0, t1, max_steps=200_000, **{**CHAIN_SETTING, **change})
         jax.block_until_ready(s.q)
         return s
 
-    steps = [int(s.steps) + int(s.rejected) for s in (run(t1) for t1 in CHAIN_T1)]
-    real = integrate._simulate
+    def count(s):
+        return int(s.steps) + int(s.rejected)
 
-    def prelude():
-        integrate._simulate = lambda *a, **k: None
+    steps = [count(run(t1)) for t1 in CHAIN_T1]
+    variant_steps = {k: [count(run(t1, **v)) for t1 in (CHAIN_T1[0], CHAIN_T1[-1])] for k, v in CHAIN_VARIANTS.items()}
+    real_call = xla.TopJit.__call__
+
+    def python_only():  # everything up to JAX's dispatch of the compiled rollout (its jit call made a no-op)
+        xla.TopJit.__call__ = lambda self, *a, **k: None
         try:
             simulate_mechanism(mech, x0, xd0, 0.0, 2.0, max_steps=200_000, **CHAIN_SETTING)
         finally:
-            integrate._simulate = real
+            xla.TopJit.__call__ = real_call
+
+    def timed(fn):
+        t = time.perf_counter()
+        fn()
+        return time.perf_counter() - t
 
     times = {t1: [] for t1 in CHAIN_T1}
+    vtimes = {(k, t1): [] for k in CHAIN_VARIANTS for t1 in (CHAIN_T1[0], CHAIN_T1[-1])}
     pre = []
     for _ in range(LAPS):
         for t1 in CHAIN_T1:
-            for _ in range(3):
-                t = time.perf_counter()
-                run(t1)
-                times[t1].append(time.perf_counter() - t)
-        for _ in range(3):
-            t = time.perf_counter()
-            prelude()
-            pre.append(time.perf_counter() - t)
+            times[t1] += [timed(lambda: run(t1)) for _ in range(3)]
+        for (k, t1), ts in vtimes.items():
+            ts += [timed(lambda: run(t1, **CHAIN_VARIANTS[k])) for _ in range(3)]
+        pre += [timed(python_only) for _ in range(3)]
     med = [statistics.median(times[t1]) for t1 in CHAIN_T1]
     fixed, per_step = np.linalg.lstsq(np.vstack([np.ones(len(steps)), steps]).T, np.asarray(med), rcond=None)[0]
+    variants = {}
+    for k, (n1, n2) in variant_steps.items():
+        a, b = (statistics.median(vtimes[(k, t1)]) for t1 in (CHAIN_T1[0], CHAIN_T1[-1]))
+        per = (b - a) / (n2 - n1)
+        variants[k] = {"steps": [n1, n2], "median_s": [a, b], "fixed_s": a - n1 * per, "per_step_s": per}
+    two_point = (med[-1] - med[0]) / (steps[-1] - steps[0])
     return {"t1_s": list(CHAIN_T1), "steps": steps, "median_s": med, "fixed_s": float(fixed),
-            "per_step_s": float(per_step), "python_before_dispatch_s": statistics.median(pre)}
+            "per_step_s": float(per_step), "two_point_fixed_s": med[0] - steps[0] * two_point,
+            "variants": variants, "python_before_dispatch_s": statistics.median(pre),
+            "constraints": mech.n_constraints, "coords": mech.n_coords}
+
+
+_PINNED_PART = r"""
+import json, os, statistics, sys, time
+os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+import particlesim
+import jax, jax.numpy as jnp, numpy as np
+from particlesim.data import data_dir
+from particlesim.io import load_urdf
+from particlesim.tree import dynamics
+model = load_urdf(data_dir() / sys.argv[1], gravity=(0.0, -9.81, 0.0), limits="ignore")
+rng = np.random.default_rng(0)
+q, qd, tau = (jnp.asarray(rng.uniform(-1, 1, (1024, model.nv))) for _ in range(3))
+s0 = jnp.asarray(0, jnp.int32)
+def part():
+    return jax.block_until_ready(dynamics._batched_part(model, q, qd, tau, s0, False, 512))
+part(); part()
+laps = []
+for _ in range(int(sys.argv[2])):
+    t = time.perf_counter()
+    for _ in range(3):
+        part()
+    laps.append((time.perf_counter() - t) / 3)
+print(json.dumps({"alone_s": statistics.median(laps), "cores": sorted(os.sched_getaffinity(0))}))
+"""
+
+
+def _pinned_part() -> dict | None:
+    """One part of 512 Krang states timed in a fresh process held to one core (XLA's pool threads included)."""
+    if not hasattr(os, "sched_setaffinity"):
+        return None
+    out = subprocess.run([sys.executable, "-c", _PINNED_PART, KRANG_URDF, str(LAPS)], check=True,
+                         capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def _krang_parts() -> dict:
@@ -257,7 +319,11 @@ def run() -> dict:
     print("chain decomposition", flush=True)
     chain = _chain_decomposition()
     print("krang parts", flush=True)
+    pinned = [_pinned_part()]  # before and after the unpinned laps: the machine drifts between processes
     parts = _krang_parts()
+    pinned.append(_pinned_part())
+    if pinned[0] is not None:
+        parts["pinned_alone_s"] = [p["alone_s"] for p in pinned]
     return {"benchmark": NAME, "environment": environment(), "workloads": WORKLOADS, "profiles": profiles,
             "profiles_missing": why, "sample_s": SAMPLE_S, "rate_hz": RATE_HZ, "chain": chain, "krang_parts": parts,
             "wall_s": time.perf_counter() - t0}
@@ -292,7 +358,7 @@ def write(results: dict) -> None:
     xs = np.asarray([0, max(c["steps"])])
     a2.plot(xs, (c["fixed_s"] + c["per_step_s"] * xs) * 1e3, "-",
             label=f"fit: {c['fixed_s'] * 1e6:.0f} µs + {c['per_step_s'] * 1e6:.0f} µs/step")
-    a2.axhline(c["python_before_dispatch_s"] * 1e3, ls=":", color="k", label="Python before dispatch")
+    a2.axhline(c["python_before_dispatch_s"] * 1e3, ls=":", color="k", label="Python up to the jit call")
     a2.set_xlabel("steps (accepted + rejected)")
     a2.set_ylabel("ms")
     a2.legend(fontsize=7)
@@ -304,10 +370,12 @@ def write(results: dict) -> None:
 def markdown(results: dict) -> str:
     env = results["environment"]
     lines = ["### Where the time goes: profiles of short programs", "",
-             f"{env['cpu']}, {env['cpu_count']} cores, {env['date']}; jax {env['versions'].get('jax')}."]
+             f"{env['cpu']}, {env['cpu_count']} cores, load average {env['load_average_1_5_15min'][0]:.1f} (1 min), "
+             f"{env['date']}; jax {env['versions'].get('jax')}; took {results['wall_s'] / 60:.1f} min."]
     if results["profiles"]:
         lines += [f"`perf` samples at {results['rate_hz']} Hz over {results['sample_s']:g} s of each workload looping "
-                  "(a fresh process each, compiled and warmed first); shares of all samples, and the cores kept busy.",
+                  "(a fresh process each, compiled and warmed first); shares of all samples, and the cores kept busy "
+                  "(thread pools spinning for work count as busy: XLA's runtime column).",
                   "", "| workload | cores busy | " + " | ".join(GROUPS) + " |",
                   "|---|---:|" + "---:|" * len(GROUPS)]
         for which, p in results["profiles"].items():
@@ -316,14 +384,23 @@ def markdown(results: dict) -> str:
     else:
         lines += ["", f"No profiles: {results['profiles_missing']}."]
     c, k = results["chain"], results["krang_parts"]
-    lines += ["", f"4-link chain, run time against steps (t1 = {', '.join(f'{t:g}' for t in c['t1_s'])} s: "
+    us = 1e6
+    variants = "; ".join(f"{name} {v['fixed_s'] * us:.0f} µs fixed + {v['per_step_s'] * us:.0f} µs per step"
+                         for name, v in c.get("variants", {}).items())
+    lines += ["", f"4-link chain ({c.get('coords', 24)} coordinates, {c.get('constraints', 20)} constraint rows), run "
+              f"time against steps (t1 = {', '.join(f'{t:g}' for t in c['t1_s'])} s: "
               f"{', '.join(str(s) for s in c['steps'])} steps; medians "
-              f"{', '.join(f'{m * 1e6:.0f}' for m in c['median_s'])} µs): **{c['fixed_s'] * 1e6:.0f} µs fixed + "
-              f"{c['per_step_s'] * 1e6:.0f} µs per Dopri8 step**, of the fixed part "
-              f"{c['python_before_dispatch_s'] * 1e6:.0f} µs of Python before dispatch.", "",
+              f"{', '.join(f'{m * us:.0f}' for m in c['median_s'])} µs): **{c['fixed_s'] * us:.0f} µs fixed + "
+              f"{c['per_step_s'] * us:.0f} µs per Dopri8 step** (least squares; "
+              f"{c.get('two_point_fixed_s', c['fixed_s']) * us:.0f} µs fixed from the first and last alone), of the "
+              f"fixed part {c['python_before_dispatch_s'] * us:.0f} µs of Python up to the compiled rollout's jit "
+              "call."
+              + (f" Two-point fits of variants, same laps: {variants}." if variants else ""), "",
               f"Krang's batch in parts: one part of 512 states alone {k['alone_s'] * 1e3:.2f} ms keeping "
-              f"{k['cores_busy_alone']:.2f} cores busy; two parts at once on two threads "
-              f"{k['together_s'] * 1e3:.2f} ms "
+              f"{k['cores_busy_alone']:.2f} cores busy"
+              + (f" (in a fresh process held to one core: {' and '.join(f'{t * 1e3:.2f}' for t in k['pinned_alone_s'])}"
+                 " ms, before and after)" if k.get("pinned_alone_s") else "")
+              + f"; two parts at once on two threads {k['together_s'] * 1e3:.2f} ms "
               f"({k['cores_busy_together']:.2f} cores): **efficiency {k['efficiency']:.2f}** (lap quartiles "
               f"{k['efficiency_quartiles'][0]:.2f}–{k['efficiency_quartiles'][1]:.2f}; 1.0 would double the "
               "throughput).", ""]

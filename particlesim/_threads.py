@@ -73,9 +73,9 @@ def pool(workers: int) -> ThreadPoolExecutor:
 
 def run_parts(fn: Callable, parts: Sequence[tuple]) -> list:
     """``[fn(*args) for args in parts]``, the first on this thread and the others on a kept pool's threads, handed
-    over before this thread starts its own (a program dispatched asynchronously first once held back those dispatched
-    after it from other threads: two 0.25 s loops took 0.50-0.54 s that way, 0.25 s the other; not seen with jaxlib
-    0.10.2, where either order runs them side by side, so the order is kept as harmless). A part the pool has
+    over before this thread starts its own (an earlier measurement found a program dispatched asynchronously first
+    holding back those dispatched after it from other threads, two 0.25 s loops taking 0.50-0.54 s; not reproduced on
+    2026-12-06, jaxlib 0.10.2: either order 0.24-0.26 s; the order is kept, harmless either way). A part the pool has
     not started by the time this thread is done is taken back and run here, so that a part whose program calls back
     into Python and starts another batch cannot wait on itself. The pool's threads run their parts under the JAX
     settings this thread has set locally (``jax.default_device``, ``jax.debug_nans``... as context managers:

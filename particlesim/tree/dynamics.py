@@ -395,9 +395,9 @@ def _in_parts(model: TreeModel, q, qd, tau, smooth_friction, size: int, parts: i
 
 
 def _run(entry, *args):
-    """One part, dispatched and waited for on its thread. The pool's parts are handed over before this thread
-    dispatches its own (:func:`particlesim._threads.run_parts` says why). Concurrent first calls
-    compile once (JAX waits for a compile in flight; :class:`particlesim._xla.TopJit` builds its jit under a lock)."""
+    """One part, dispatched and waited for on its thread (:func:`particlesim._threads.run_parts` hands the pool's
+    parts over first and explains the order). Concurrent first calls compile once (JAX waits for a compile in flight;
+    :class:`particlesim._xla.TopJit` builds its jit under a lock)."""
     return jax.block_until_ready(entry(*args))
 
 

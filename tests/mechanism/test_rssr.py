@@ -45,9 +45,13 @@ def build(m_coupler=M_COUPLER):
     rod = RigidInertia.slender_rod
     a0, b0 = _tips(0.0, PHI0)
     mb = MechanismBuilder(gravity=(0.0, 0.0, -G))
-    mb.ground("G1", (0.0, 0.0, 0.0)); mb.ground("G2", (0.0, 0.0, 0.1)); mb.particle("A", a0)
+    mb.ground("G1", (0.0, 0.0, 0.0))
+    mb.ground("G2", (0.0, 0.0, 0.1))
+    mb.particle("A", a0)
     mb.body("crank", rod(M_CRANK, (0.0, 0.0, 0.0), a0), ["G1", "G2", "A"])  # revolute about z
-    mb.ground("H1", PIVOT); mb.ground("H2", PIVOT + (0.1, 0.0, 0.0)); mb.particle("B'", b0)
+    mb.ground("H1", PIVOT)
+    mb.ground("H2", PIVOT + (0.1, 0.0, 0.0))
+    mb.particle("B'", b0)
     mb.body("rocker", rod(M_ROCKER, PIVOT, b0), ["H1", "H2", "B'"])  # revolute about x
     mb.particle("B", b0)
     mb.rod("coupler", "A", "B", mass=m_coupler)  # spherical joints at both ends
@@ -100,6 +104,7 @@ def _angles(mech, qs):
 def rollout():
     mech, q0 = build()
     sol = simulate_mechanism(mech, q0, 0 * q0, 0.0, T_END, rtol=1e-11, atol=1e-13, saveat_ts=TS)
+    assert bool(sol.ok)
     return mech, q0, sol
 
 
