@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 import jax
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["usable_cores", "pool", "run_parts", "threads_apply", "local_settings", "settings_applied"]
+__all__ = ["usable_cores", "pool", "run_parts", "threads_apply"]
 
 _pools: dict[int, ThreadPoolExecutor] = {}
 _lock = threading.Lock()
@@ -96,17 +96,39 @@ def run_parts(fn: Callable, parts: Sequence[tuple]) -> list:
     return outs
 
 
+#: Thread-local JAX settings never carried to the pool's threads: the thread guard marks the one thread allowed to
+#: run JAX work (set on a second thread, JAX refuses it, and clearing it there would clear the caller's).
+NOT_CARRIED = frozenset({"jax_thread_guard"})
+
+_SETTINGS: list = []  # [(number of JAX's config states when collected, the settings)]
+
+
+def _all_settings() -> tuple:
+    """Every JAX setting that can hold a thread-local value: the options of ``jax._src.config.config_states`` and the
+    context managers' own ``config_ext.Config`` objects of that module (mesh, compute_on, xla_metadata...), those
+    in :data:`NOT_CARRIED` left out. Collected once, again when JAX defines new options."""
+    from jax._src import config as jax_config
+
+    states = jax_config.config_states
+    if not _SETTINGS or _SETTINGS[0][0] != len(states):
+        found = {id(c): c for c in vars(jax_config).values() if isinstance(c, jax_config.config_ext.Config)}
+        found.update((id(c), c) for c in states.values())
+        carried = tuple(c for c in found.values() if getattr(c, "name", None) not in NOT_CARRIED)
+        _SETTINGS[:] = [(len(states), carried)]
+    return _SETTINGS[0][1]
+
+
 def local_settings() -> tuple:
     """The JAX settings this thread has set for itself (the context managers ``jax.default_device``,
-    ``jax.debug_nans``, ``jax.numpy_rank_promotion``...), as ``(setting, value)`` pairs for :func:`settings_applied`;
-    empty when none is set, or when this JAX does not expose its settings as the code expects (its ``config_states``
-    and their ``get_local``): then the pool's threads run under the process's settings."""
+    ``jax.debug_nans``, ``jax.numpy_rank_promotion``, ``jax.set_mesh``...), as ``(setting, value)`` pairs for
+    :func:`settings_applied`. Not found: a user's own ``make_user_context`` contexts (JAX keeps no list of them), and
+    :data:`NOT_CARRIED`. Empty when none is set, or when this JAX does not keep its settings as the code expects
+    (``jax._src.config``): then the pool's threads run under the process's settings."""
     try:
         from jax._src import config as jax_config
 
         unset = jax_config.config_ext.unset
-        return tuple((state, value) for state in jax_config.config_states.values()
-                     if (value := state.get_local()) is not unset)
+        return tuple((c, value) for c in _all_settings() if (value := c.get_local()) is not unset)
     except Exception:  # another JAX's internals
         return ()
 
@@ -114,24 +136,31 @@ def local_settings() -> tuple:
 @contextlib.contextmanager
 def settings_applied(settings: tuple):
     """Set :func:`local_settings`' pairs on this thread for the block, as JAX's own context managers set them (the
-    thread-local value and its hook), and restore what was there after."""
+    thread-local value, then its hook if it has one), and restore what was there after, every pair even when one
+    fails to (the first error is raised after): the pool's threads are reused."""
     from jax._src import config as jax_config
 
     unset = jax_config.config_ext.unset
     entered = []
     try:
-        for state, value in settings:
-            entered.append((state, state.swap_local(value)))
-            hook = getattr(state, "_update_thread_local_hook", None)
+        for c, value in settings:
+            entered.append((c, c.swap_local(value)))
+            hook = getattr(c, "_update_thread_local_hook", None)
             if hook:
                 hook(value)
         yield
     finally:
-        for state, prev in reversed(entered):
-            state.set_local(prev)
-            hook = getattr(state, "_update_thread_local_hook", None)
-            if hook:
-                hook(None if prev is unset else prev)
+        error = None
+        for c, prev in reversed(entered):
+            try:
+                c.set_local(prev)
+                hook = getattr(c, "_update_thread_local_hook", None)
+                if hook:
+                    hook(None if prev is unset else prev)
+            except Exception as e:  # restore the others first
+                error = error or e
+        if error is not None:
+            raise error
 
 
 def _under(settings: tuple, fn: Callable, *args):

@@ -67,3 +67,58 @@ def test_pool_parts_run_under_the_callers_local_settings():
     barrier.reset()
     outs = _threads.run_parts(seen, [(k,) for k in range(n)])
     assert all(tuple(v) == before for _, *v in outs)  # the pool's threads back to the process's settings
+
+
+def _context():
+    """JAX's trace context (what its jit keys on) without the per-thread axis environment object."""
+    from jax._src import config as jax_config
+
+    return tuple(v for n, v in zip(jax_config.trace_context_names(), jax_config.trace_context())
+                 if n != "axis_env_state")
+
+
+def test_pool_parts_see_the_callers_mesh_and_keep_the_thread_guard_to_the_caller():
+    """A mesh set with ``jax.set_mesh`` (a context manager's own setting, not a config option) reaches the pool's
+    parts: they trace under the caller's context. ``jax.thread_guard`` is not carried (on a second thread JAX refuses
+    it): a batch split under it runs, and the caller's guard is still set afterwards."""
+    barrier = threading.Barrier(2, timeout=30)
+
+    def part(_):
+        barrier.wait()
+        return threading.current_thread().name, _context()
+
+    with jax.set_mesh(jax.make_mesh((1,), ("x",))):
+        mine = _context()
+        outs = _threads.run_parts(part, [(0,), (1,)])
+    assert len({name for name, _ in outs}) == 2
+    assert all(ctx == mine for _, ctx in outs)
+    barrier.reset()
+    guard = jax.config.jax_thread_guard
+    with jax.thread_guard(True):
+        outs = _threads.run_parts(lambda k: (barrier.wait(), k)[1], [(0,), (1,)])
+        assert outs == [0, 1] and jax.config.jax_thread_guard
+    assert jax.config.jax_thread_guard == guard
+
+
+def test_settings_are_all_restored_when_one_fails_to():
+    """``settings_applied`` restores every setting on a reused pool thread even when one of them fails to, and raises
+    that failure after."""
+
+    class Setting:
+        def __init__(self, fail=False):
+            self.value, self.fail = "process", fail
+
+        def swap_local(self, v):
+            old, self.value = self.value, v
+            return old
+
+        def set_local(self, v):
+            if self.fail:
+                raise RuntimeError("cannot restore")
+            self.value = v
+
+    good, bad, other = Setting(), Setting(fail=True), Setting()
+    with pytest.raises(RuntimeError, match="cannot restore"):
+        with _threads.settings_applied(((good, "caller's"), (bad, "caller's"), (other, "caller's"))):
+            assert good.value == bad.value == other.value == "caller's"
+    assert good.value == other.value == "process"
