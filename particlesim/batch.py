@@ -31,7 +31,7 @@ import numpy as np
 from jax.sharding import Mesh, PartitionSpec as P
 
 from . import _xla
-from ._ode import _ArrayImpl
+from ._ode import _concrete
 from ._threads import run_parts, threads_apply, usable_cores
 
 __all__ = ["AXIS", "batch_mesh", "stack", "param_axes", "sharded_vmap"]
@@ -189,8 +189,7 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
             parts = usable_cores() if threads is None else int(threads)
         if parts > 1:
             leaves, treedef = jax.tree.flatten(args)
-            if all(type(leaf) is _ArrayImpl or isinstance(leaf, np.ndarray) or not isinstance(leaf, jax.Array)
-                   for leaf in leaves):  # concrete (no tracer among them)
+            if all(map(_concrete, leaves)):  # no tracer among them (one leaked from a trace stays one program)
                 axes = _leaf_axes(in_axes, args)
                 b = _batch_size(leaves, axes)
                 if b == 0:

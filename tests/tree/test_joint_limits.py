@@ -1,6 +1,9 @@
 """Soft joint limits (optional, off by default): a one-sided spring-damper beyond each bound, against the closed
 form of a rotor bouncing off its stop."""
 
+import equinox as eqx
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -74,9 +77,6 @@ def test_continuous_joints_with_modelled_limits_run_unbounded():
     entry accepts as finite parameters (only NaN bounds or non-finite stiffness and damping are refused); the rotor
     spins past any angle exactly as without limits (a rollout and its gradient), while its limited neighbour's stop
     still acts."""
-    import jax
-    import jax.numpy as jnp
-
     urdf = ROTOR.replace('type="revolute"', 'type="continuous"').replace(
         '</robot>', '<link name="arm"><inertial><mass value="1"/><origin xyz="0.2 0 0"/><inertia ixx="0.01" ixy="0" '
         'ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link><joint name="hinge" type="revolute"><parent '
@@ -86,8 +86,6 @@ def test_continuous_joints_with_modelled_limits_run_unbounded():
     free = load_urdf(urdf, limits="ignore")
     lim = np.asarray(limited.limits)
     assert np.isinf(lim[0, :2]).all() and np.isfinite(lim[1]).all()
-    import equinox as eqx
-
     wrong = [lim.copy(), lim.copy()]  # an infinite bound on the wrong side is no open side: refused
     wrong[0][0, 0], wrong[1][0, 1] = np.inf, -np.inf  # lower bound +inf, upper bound -inf
     for w in wrong:
