@@ -327,11 +327,13 @@ def velocity_target(prep: Prepared, r: Rows) -> Float[Array, " C"] | float:
 #: elementwise kernel, the row vectors behind an optimisation barrier); beyond, as the dense product ``E E^T``.
 #: Single rollouts, this rule against ``E E^T`` everywhere (medians of 25, one process per variant, interleaved):
 #: Nikravesh AA (5 rows) 3.07 -> 2.71 ms, 3-link spherical chain (18) 6.08 -> 5.19, 4-link revolute (20) 2.20 ->
-#: 2.04, 6-link (30) 5.46 -> 4.71. The bound is set by one measurement, the quarter car's gradient: with outer
-#: products the quarter car (33 rows) ran 16.3 -> 15.9 ms and an 8-link chain (40) 9.51 -> 8.39 ms, but the quarter
-#: car's reverse-mode gradient cost 5.4-5.7x its rollout against 5.0x (also with a custom derivative rule written
-#: with ``E E^T``: 5.4x). Sizes between 30 and 33 rows, and other gradients, were not measured.
-GRAM_OUTER_MAX_ROWS = 32
+#: 2.04, 6-link (30) 5.46 -> 4.71; with outer products the quarter car (33 rows) ran 16.3 -> 15.9 ms and an 8-link
+#: chain (40) 9.51 -> 8.39 ms. The quarter car was first kept on ``E E^T`` because its reverse-mode gradient then cost
+#: 5.4-5.7x its rollout against 5.0x; since the multipliers' solve is differentiated with its matrix applied
+#: (:func:`schur_solve`) the two forms give it alike (4.49 and 4.52x against 4.50 and 4.38x, rollouts 19.5-19.7
+#: against 20.2-20.4 ms; jacfwd 16.4-17.0x against 16.3-16.8x; two processes each, alternating). Sizes beyond 40 rows
+#: were not measured.
+GRAM_OUTER_MAX_ROWS = 40
 
 
 def schur(prep: Prepared, r: Rows) -> Float[Array, "C C"]:
