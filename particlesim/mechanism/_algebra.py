@@ -331,8 +331,9 @@ def velocity_target(prep: Prepared, r: Rows) -> Float[Array, " C"] | float:
 #: chain (40) 9.51 -> 8.39 ms. The quarter car was first kept on ``E E^T`` because its reverse-mode gradient then cost
 #: 5.4-5.7x its rollout against 5.0x; since the multipliers' solve is differentiated with its matrix applied
 #: (:func:`schur_solve`) the two forms give it alike (4.49 and 4.52x against 4.50 and 4.38x, rollouts 19.5-19.7
-#: against 20.2-20.4 ms; jacfwd 16.4-17.0x against 16.3-16.8x; two processes each, alternating). Sizes beyond 40 rows
-#: were not measured.
+#: against 20.2-20.4 ms; jacfwd 16.4-17.0x against 16.3-16.8x; two processes each, alternating). Not measured: sizes
+#: beyond 40 rows, other gradients (the 8-link chain's; gradients vmapped over parameter sets), and least-squares
+#: mechanisms, whose multipliers are still differentiated through the factorisation (:func:`solve_schur`).
 GRAM_OUTER_MAX_ROWS = 40
 
 

@@ -95,8 +95,8 @@ def test_projection_reaches_round_off_from_a_step_sized_error(name):
 @pytest.mark.parametrize("saves", [None, 3], ids=["t0 and t1", "at given times"])
 def test_saved_states_lie_on_the_constraints_from_a_disturbed_start(saves):
     """Every saved state of a projected rollout of a moving chain is on the constraints, the initial one included
-    when the start is off them by a step-sized error (without save times only that one is projected after the run;
-    the final one ends a projected step)."""
+    when the start is off them by a step-sized error (without save times the initial and the final states are
+    projected after the run, to round-off; the steps between make one pass of each kind)."""
     from particlesim.mechanism import residuals, simulate_mechanism
 
     mech, x0 = SCENES["revolute chain"]()
