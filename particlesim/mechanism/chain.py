@@ -230,9 +230,11 @@ def chain_accelerations(mech: Mechanism, plan: ChainPlan, t, q: Float[Array, " 3
     return _owned_to_free(mech, plan, z[:, :3 * no].reshape(n_bodies, no, 3))
 
 
-def chain_project(mech: Mechanism, plan: ChainPlan, q, qd, *, mass_blocks: Array | None = None):
+def chain_project(mech: Mechanism, plan: ChainPlan, q, qd, *, mass_blocks: Array | None = None,
+                  passes: tuple[int, int] = (2, 2)):
     """The mass-orthogonal projection of :mod:`.integrate` along the chain: ``[[M, J^T], [J, 0]] [dx; mu] =
-    [0; -Phi]`` solved with one block factorisation (O(N)), two position passes, then two velocity passes."""
+    [0; -Phi]`` solved with one block factorisation (O(N)), ``passes`` position passes, then velocity passes (two
+    of each reach round-off; between a rollout's steps one of each, :data:`~.integrate.BETWEEN_STEPS`)."""
     n_bodies = len(plan.idx)
     no = len(plan.owned)
     mb = chain_mass_blocks(mech) if mass_blocks is None else mass_blocks
@@ -247,12 +249,12 @@ def chain_project(mech: Mechanism, plan: ChainPlan, q, qd, *, mass_blocks: Array
         return _owned_to_free(mech, plan, z[:, :3 * no].reshape(n_bodies, no, 3))
 
     d = sys.d
-    for _ in range(2):
+    for _ in range(passes[0]):
         phi = 0.5 * jnp.sum(d * d, axis=-1) - kappa
         q = q + correction(-phi)
         r = mech.all_positions(q)[np.asarray(plan.idx)]
         d = r[:, ra] - r[:, rb]
-    for _ in range(2):
+    for _ in range(passes[1]):
         v = _velocities(mech, plan, qd)
         qd = qd + correction(-jnp.sum(d * (v[:, ra] - v[:, rb]), axis=-1))
     return q, qd

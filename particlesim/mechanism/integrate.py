@@ -233,7 +233,7 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
     def projection(t, y, args, passes=BETWEEN_STEPS):
         m, p, cb = unpack(args)
         if plan is not None:
-            return chain_project(m, plan, *y, mass_blocks=cb)
+            return chain_project(m, plan, *y, mass_blocks=cb, passes=passes)
         return project_prepared(m, p, *y, t, passes)
 
     def full_projection(t, y, args):
@@ -268,11 +268,8 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
             cfg=cfg, projection=projection if stabilise else None, hint=_budget_hint(mech, cfg.solver, solve))
     if stabilise and (cfg.save_ts or max_events):  # saved states interpolated inside steps: onto the constraints
         qs, qds = jax.lax.map(lambda tab: full_projection(tab[0], tab[1:], args0), (ts_, qs, qds))
-    elif stabilise and plan is None:  # saved at t0 and t1 only: both to round-off (t1 ends a lighter projection)
+    elif stabilise:  # saved at t0 and t1 only: both to round-off (t1 ends a lighter projection)
         qs, qds = jax.vmap(lambda t, q, qd: full_projection(t, (q, qd), args0))(ts_, qs, qds)
-    elif stabilise:  # the chain's projection is the same between steps: the state at t1 ends one
-        q_start, qd_start = projection(ts_[0], (qs[0], qds[0]), args0)
-        qs, qds = qs.at[0].set(q_start), qds.at[0].set(qd_start)
     if warn_switch:  # a differentiated rollout stepping across a tyre's switch: say so (derivatives are biased)
         touching = jax.vmap(lambda q: deflections(q, mech, prep) < 0.0)(jnp.concatenate([q0[None], qs]))
         jax.debug.callback(_warn_switches, jnp.any(touching[1:] != touching[:-1], axis=0),
