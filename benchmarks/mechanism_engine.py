@@ -409,6 +409,11 @@ def markdown(res: dict) -> str:
         lines += ["", f"Batch rows rerun {rr['date']} ({load}). "
                   "Ours runs each member's adaptive loop alone ('one at a time') or vectorised; vectorised members "
                   "step together and every step carries the whole slice, which costs more per member here."]
+    if res.get("chain_steps_rerun"):
+        rr = res["chain_steps_rerun"]
+        load = (f"load {rr['load_before']:.1f} before it, {rr['load']:.1f} after" if "load_before" in rr
+                else f"load {rr.get('load', float('nan')):.1f}")
+        lines += ["", f"Chain rows rerun {rr['date']} ({load})."]
     lines += ["", "| revolute chain | solve | build | steps | per projected step |", "|---|---|---:|---:|---:|"]
     for r in res["chain_steps"]:
         lines.append(f"| N = {r['n']} | {r['solve']} | {r['build_s']:.2f} s | {r['steps']} | "

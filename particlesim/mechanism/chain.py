@@ -233,8 +233,9 @@ def chain_accelerations(mech: Mechanism, plan: ChainPlan, t, q: Float[Array, " 3
 def chain_project(mech: Mechanism, plan: ChainPlan, q, qd, *, mass_blocks: Array | None = None,
                   passes: tuple[int, int] = (2, 2)):
     """The mass-orthogonal projection of :mod:`.integrate` along the chain: ``[[M, J^T], [J, 0]] [dx; mu] =
-    [0; -Phi]`` solved with one block factorisation (O(N)), ``passes`` position passes, then velocity passes (two
-    of each reach round-off; between a rollout's steps one of each, :data:`~.integrate.BETWEEN_STEPS`)."""
+    [0; -Phi]`` solved with one block factorisation (O(N)), ``passes[0]`` position passes, then ``passes[1]``
+    velocity passes (two of each reach round-off; between a rollout's steps one of each,
+    :data:`~.integrate.BETWEEN_STEPS`)."""
     n_bodies = len(plan.idx)
     no = len(plan.owned)
     mb = chain_mass_blocks(mech) if mass_blocks is None else mass_blocks

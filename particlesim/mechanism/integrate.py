@@ -12,12 +12,13 @@ error, and removed again at the next step, so nothing accumulates. Saved outputs
 round-off (the tests measure it): all of them when saved at given times (which fall inside steps) or with events;
 else the initial and the final state. A second iteration of each between steps cost 8 % of a quarter car's rollout
 (5.79 against 5.37 ms, Tsit5 at rtol 4e-3, medians of 90 interleaved calls in one process; 5.91 against 5.45 ms
-through ``simulate_mechanism`` in alternating processes) and changed its end position by 4e-14 m. Mechanisms with a
-singular mass matrix project with three Gauss–Newton steps and one velocity pass everywhere. The projection leaves
-the method's order intact (the correction is of the size of the local error), needs no tuning constant (unlike
-Baumgarte's), and is a smooth function of state and parameters, so gradients pass through it. Its iteration count is
-fixed rather than a tolerance-driven loop because a data-dependent loop cannot be differentiated in reverse mode.
-Mechanisms whose mass matrix is singular project with ``J J^T`` instead.
+through ``simulate_mechanism`` in alternating processes) and changed its end position by 4e-14 m. The projection
+leaves the method's order intact (the correction is of the size of the local error), needs no tuning constant
+(unlike Baumgarte's), and is a smooth function of state and parameters, so gradients pass through it. Its iteration
+count is fixed rather than a tolerance-driven loop because a data-dependent loop cannot be differentiated in reverse
+mode. The O(N) chain path (:func:`~.chain.chain_project`) projects the same way. Mechanisms whose mass matrix is
+singular project with ``J J^T`` instead: three Gauss–Newton steps and one velocity pass, between steps and at
+outputs alike.
 
 Adjoints: "checkpoint" (default), "direct" and "forward" differentiate the discrete computation, projections
 included. "backsolve" integrates the continuous adjoint equations of the vector field backwards in time; the
