@@ -40,7 +40,7 @@ from .._linalg import _zero, spd_solve_applied
 
 __all__ = ["Prepared", "prepare", "scalar_mass_matrix", "Rows", "rows", "schur", "apply_j", "apply_minv_jt",
            "residual", "gamma", "velocity_target", "Drive", "drive_at", "SchurFactor", "factor_schur", "solve_schur",
-           "schur_solve", "LSQ_RTOL", "LSQ_REFINE"]
+           "schur_solve", "LSQ_RTOL", "LSQ_REFINE", "FULL", "BETWEEN_STEPS"]
 
 #: Least-squares multipliers: ``S`` is factorised as ``S + mu I`` with ``mu`` this fraction of its largest diagonal
 #: entry (a Tikhonov/Levenberg damping that keeps the factorisation defined when rows are redundant or the
@@ -52,6 +52,13 @@ LSQ_RTOL = 1e-8
 #: least-squares solution on every direction with ``sigma^2 >> mu`` (error ``(mu / sigma^2)^(k+1)``: 1e-10 relative
 #: at ``sigma^2 = 1e-6 max diag S``), so that a full-rank mechanism agrees with the plain Cholesky solve.
 LSQ_REFINE = 4
+
+#: (position iterations, velocity passes) of a full projection onto the constraints (saved outputs, the public
+#: ``project``) ...
+FULL = (2, 2)
+#: ... and of the projection between a rollout's steps (:mod:`.integrate`'s docstring), on the dense and the O(N)
+#: chain path alike.
+BETWEEN_STEPS = (1, 1)
 
 
 @compiled("scalar_mass_matrix")

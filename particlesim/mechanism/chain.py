@@ -29,6 +29,7 @@ from jaxtyping import Array, Float
 
 from ..errors import ModelError
 from ..particles import primary_mass_matrix
+from ._algebra import FULL
 from .model import Mechanism
 
 __all__ = ["ChainPlan", "chain_plan", "chain_accelerations", "chain_mass_blocks", "chain_project"]
@@ -231,11 +232,11 @@ def chain_accelerations(mech: Mechanism, plan: ChainPlan, t, q: Float[Array, " 3
 
 
 def chain_project(mech: Mechanism, plan: ChainPlan, q, qd, *, mass_blocks: Array | None = None,
-                  passes: tuple[int, int] = (2, 2)):
+                  passes: tuple[int, int] = FULL):
     """The mass-orthogonal projection of :mod:`.integrate` along the chain: ``[[M, J^T], [J, 0]] [dx; mu] =
     [0; -Phi]`` solved with one block factorisation (O(N)), ``passes[0]`` position passes, then ``passes[1]``
     velocity passes (two of each reach round-off; between a rollout's steps one of each,
-    :data:`~.integrate.BETWEEN_STEPS`)."""
+    :data:`~._algebra.BETWEEN_STEPS`)."""
     n_bodies = len(plan.idx)
     no = len(plan.owned)
     mb = chain_mass_blocks(mech) if mass_blocks is None else mass_blocks

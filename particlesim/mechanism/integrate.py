@@ -40,8 +40,8 @@ from .._ode import ADJOINTS, Solution
 from ..errors import ModelError
 from ..inertia import check_inertia, physical_inertia
 from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_project
-from ._algebra import (Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian, prepare, residual, rows,
-                       schur, schur_solve, solve_schur, velocity_target)
+from ._algebra import (BETWEEN_STEPS, FULL, Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian,
+                       prepare, residual, rows, schur, schur_solve, solve_schur, velocity_target)
 from .dynamics import _solve
 from .forces import tyre_deflections
 from .model import NON_NEGATIVE, Mechanism
@@ -51,11 +51,7 @@ __all__ = ["ADJOINTS", "project", "simulate_mechanism", "SwitchCrossedWarning"]
 
 SwitchCrossedWarning = _ode.SwitchCrossedWarning
 
-#: (position iterations, velocity passes) of a full projection (:func:`project`, saved outputs) ...
-FULL = (2, 2)
-#: ... and of the projection between steps (module docstring).
-BETWEEN_STEPS = (1, 1)
-
+# The projections' pass counts (FULL, BETWEEN_STEPS) are :mod:`._algebra`'s, shared with the O(N) chain path.
 
 def _project_euclid(mech: Mechanism, prep: Prepared, q, qd, drive):
     """Minimum-norm (``J J^T``) projection for mechanisms with a singular mass matrix (LU, 3 Gauss–Newton steps)."""

@@ -126,6 +126,31 @@ def test_projection_between_steps_leaves_the_square_of_the_error(name):
 
 
 @pytest.mark.parametrize("solve", ["dense", "chain"])
+def test_a_rollout_projects_lightly_between_steps_and_fully_at_outputs(solve, monkeypatch):
+    """What :func:`simulate_mechanism` asks of the projection, read off its trace (no compile): the step's
+    projection with :data:`BETWEEN_STEPS` passes, the saved states' with :data:`FULL`, on the dense and the O(N)
+    chain path (the test above checks what one light pass leaves; this one that the rollout uses it)."""
+    from particlesim.mechanism import integrate, simulate_mechanism
+
+    seen = []
+    name = "project_prepared" if solve == "dense" else "chain_project"
+    real = getattr(integrate, name)
+
+    def spy(*args, **kwargs):
+        passes = kwargs["passes"] if solve == "chain" else args[5]
+        seen.append(tuple(passes))
+        return real(*args, **kwargs)
+
+    raw = integrate._simulate.__wrapped__
+    monkeypatch.setattr(integrate, name, spy)
+    monkeypatch.setattr(integrate, "_simulate", lambda *a, **k: jax.eval_shape(lambda: raw(*a, **k)))
+    mech, x0 = SCENES["revolute chain"]()
+    simulate_mechanism(mech, jnp.asarray(x0), jnp.zeros(x0.shape), 0.0, 0.05, solve=solve)
+    assert integrate.BETWEEN_STEPS != integrate.FULL
+    assert set(seen) == {integrate.BETWEEN_STEPS, integrate.FULL}, seen
+
+
+@pytest.mark.parametrize("solve", ["dense", "chain"])
 @pytest.mark.parametrize("saves", [None, 3], ids=["t0 and t1", "at given times"])
 def test_saved_states_lie_on_the_constraints_from_a_disturbed_start(saves, solve):
     """Every saved state of a projected rollout of a moving chain is on the constraints, the initial one included
