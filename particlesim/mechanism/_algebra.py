@@ -338,9 +338,12 @@ def velocity_target(prep: Prepared, r: Rows) -> Float[Array, " C"] | float:
 #: chain (40) 9.51 -> 8.39 ms. The quarter car was first kept on ``E E^T`` because its reverse-mode gradient then cost
 #: 5.4-5.7x its rollout against 5.0x; since the multipliers' solve is differentiated with its matrix applied
 #: (:func:`schur_solve`) the two forms give it alike (4.49 and 4.52x against 4.50 and 4.38x, rollouts 19.5-19.7
-#: against 20.2-20.4 ms; jacfwd 16.4-17.0x against 16.3-16.8x; two processes each, alternating). Not measured: sizes
-#: beyond 40 rows, other gradients (the 8-link chain's; gradients vmapped over parameter sets), and least-squares
-#: mechanisms, whose multipliers are still differentiated through the factorisation (:func:`solve_schur`).
+#: against 20.2-20.4 ms; jacfwd 16.4-17.0x against 16.3-16.8x; two processes each, alternating). A least-squares
+#: mechanism, whose multipliers are still differentiated through the factorisation (:func:`solve_schur`): the 8-link
+#: revolute chain built with ``multipliers="least_squares"`` (40 rows; Tsit5, 0.3 s), outer products against
+#: ``E E^T``: rollout 3.18-3.20 against 3.44-3.66 ms, reverse gradient in the body masses 22.2-24.0 against 21.4-22.4
+#: ms and its compile 20.9 against 17.5-18.2 s, gradients equal to 1e-13 (two processes each, alternating); kept,
+#: for the rollouts. Not measured: sizes beyond 40 rows, gradients vmapped over parameter sets.
 GRAM_OUTER_MAX_ROWS = 40
 
 
