@@ -1,5 +1,5 @@
 """Where the time of short programs goes on the CPU: sampled profiles of four workloads while they loop (Linux
-``perf``, when the machine has it), and two timing decompositions without a profiler.
+``perf``, when the machine has it), and three timing decompositions without a profiler.
 
 Workloads, each in a fresh process, warmed up (compiled, a few calls), then sampled for :data:`SAMPLE_S` seconds:
 
@@ -7,7 +7,7 @@ Workloads, each in a fresh process, warmed up (compiled, a few calls), then samp
 * ``krang batch, 1 thread`` / ``2 threads``: ``forward_dynamics`` on 1024 Krang states
   (``particlesim.tree.aba.BATCH_THREADS`` 1, and the default: one part per core);
 * ``quarter cars``: 256 quarter-car rollouts one after another on one thread (``mechanism_engine``'s batch member:
-  Tsit5, rtol 4e-3).
+  Tsit5 with the PI(0.2, 0.4) controller, rtol 4e-3).
 
 Samples are grouped by where the sampled instruction lies: compiled kernels (XLA's generated code), YNNPACK kernels
 (``ynn::``/``slinky::`` in jaxlib), BLAS/LAPACK (OpenBLAS, called by JAX's LAPACK kernels for Cholesky factors and
@@ -15,7 +15,7 @@ triangular solves), XLA's runtime (the rest of jaxlib: the thunk executor, its t
 OS kernel (thread switches), libc (malloc/free, memset, memcpy) and Python; "cores busy" is samples / (rate x
 seconds).
 
-Decompositions (interleaved laps, medians):
+Decompositions (medians of laps; the first two interleave their variants' laps):
 
 * ``chain``: run time against accepted + rejected steps (t1 from 1e-3 to 2 s), fitted as fixed + per step by least
   squares; the Python before dispatch alone (the compiled call replaced by a no-op).
@@ -23,9 +23,10 @@ Decompositions (interleaved laps, medians):
   ``forward_dynamics`` splits 1024 states on two cores); efficiency = alone / together (1.0: the second core
   doubles the throughput), with the cores each keeps busy (the process's CPU time over wall time).
 * ``quarter-car evaluation``: the quarter car's acceleration solve (39 coordinates, 36 constraint rows) as a
-  rollout evaluates it, each variant in a compiled loop of :data:`QC_LOOP` calls: as it is; with the multipliers'
-  solve replaced by a division by ``S``'s diagonal (an accounting variant, not valid dynamics: no factorisation and
-  no triangular solves, and XLA then forms only that diagonal); the projection between steps; and a 36 x 36
+  rollout evaluates it (the mechanism and its prepared quantities passed in as arrays, not baked in), each variant
+  in a compiled loop of :data:`QC_LOOP` calls, timed one after another: as it is; with the multipliers' solve
+  replaced by a division by ``S``'s diagonal (an accounting variant, not valid dynamics: no factorisation and no
+  triangular solves, and only ``S``'s diagonal is used); the projection between steps; and a 36 x 36
   symmetric positive-definite solve alone through JAX's LAPACK calls (``cho_factor`` + ``cho_solve``, and the
   factorisation alone; also 64 per call, per matrix). Beside them one batch member's accepted and rejected steps
   at the batch's setting, so that the evaluations per member can be counted, and the largest eigenvalues of the
@@ -62,7 +63,7 @@ START_TIMEOUT_S = 600.0
 CHAIN_T1 = (1e-3, 0.05, 0.3, 1.0, 2.0)
 CHAIN_SETTING = {"solver": "dopri8", "rtol": 5e-5, "atol": 5e-7}
 KRANG_URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
-QC_MEMBERS, QC_RTOL = 256, 4e-3
+QC_MEMBERS, QC_RTOL, QC_PID = 256, 4e-3, (0.2, 0.4, 0.0)  # mechanism_engine's batch setting
 GROUPS = ("compiled kernels", "YNNPACK kernels", "BLAS/LAPACK", "XLA runtime", "OS kernel", "libc", "Python",
           "other")
 
@@ -97,7 +98,7 @@ else:
     mech, x0 = qc.quarter_car()
     member = _batch_member(mech, jnp.asarray(x0))
     th = jnp.asarray(np.random.default_rng(0).uniform(0.8, 1.2, size=(int(sys.argv[4]), 9)))
-    fn = sharded_vmap(lambda t: member(t, float(sys.argv[5]), "tsit5"), chunk=1, threads=1)
+    fn = sharded_vmap(lambda t: member(t, float(sys.argv[5]), "tsit5", (0.2, 0.4, 0.0)), chunk=1, threads=1)
     def call():
         jax.block_until_ready(fn(th))
 for _ in range(3):
@@ -110,7 +111,8 @@ while True:
 WORKLOADS = {"chain": "the 4-link chain's 2 s rollout (Dopri8, rtol 5e-5)",
              "krang1": "Krang forward dynamics, 1024 states, one program",
              "krang2": "Krang forward dynamics, 1024 states, two parts on two threads",
-             "quarter": f"{QC_MEMBERS} quarter-car rollouts one after another, 1 thread (Tsit5, rtol {QC_RTOL:g})"}
+             "quarter": f"{QC_MEMBERS} quarter-car rollouts one after another, 1 thread (Tsit5 PI(0.2, 0.4), "
+                        f"rtol {QC_RTOL:g})"}
 
 
 def _group(dso: str, sym: str) -> str:
@@ -244,22 +246,26 @@ QC_LOOP = 2000
 EIG_TIMES = (0.0, 0.2, 1.0)
 
 
-def _timed_loop(fn, *args, calls: int = QC_LOOP) -> float:
-    """Median seconds per call of ``fn(*args)`` in a compiled ``fori_loop`` (each call's input nudged by the last
-    output, so that nothing is hoisted), over LAPS laps."""
-    @jax.jit
-    def loop(*a):
+def _timed_loop(fn, *args, consts=None, calls: int = QC_LOOP) -> float:
+    """Median seconds per call of ``fn(consts, *args)`` (``fn(*args)`` without ``consts``) in a compiled
+    ``fori_loop`` (each call's array inputs nudged by the last output, so that nothing is hoisted; ``consts``, a
+    pytree such as a mechanism, passed to the program as arguments, as a rollout passes them), over LAPS laps."""
+    import equinox as eqx
+
+    @eqx.filter_jit
+    def loop(c, *a):
         def body(i, carry):
-            out = fn(*(x + 1e-300 * carry for x in a))
+            nudged = [x + 1e-300 * carry for x in a]
+            out = fn(*nudged) if c is None else fn(c, *nudged)
             return jnp.ravel(out)[0] * 0.0
 
         return jax.lax.fori_loop(0, calls, body, jnp.zeros((), a[0].dtype))
 
-    jax.block_until_ready(loop(*args))
+    jax.block_until_ready(loop(consts, *args))
     laps = []
     for _ in range(LAPS):
         t = time.perf_counter()
-        jax.block_until_ready(loop(*args))
+        jax.block_until_ready(loop(consts, *args))
         laps.append((time.perf_counter() - t) / calls)
     return statistics.median(laps)
 
@@ -277,16 +283,20 @@ def _quarter_car_evaluation() -> dict:
     prep = prepare(mech)
     xd0 = jnp.asarray(np.random.default_rng(0).normal(size=x0.shape)) * 1e-2
     out = {"coords": mech.n_coords, "constraints": mech.n_constraints}
-    out["evaluation_s"] = _timed_loop(lambda q, qd: dynamics._solve(mech, prep, 0.0, q, qd, 0.0)[0], x0, xd0)
+    consts = (mech, prep)
+
+    def evaluation(c, q, qd):
+        return dynamics._solve(c[0], c[1], 0.0, q, qd, 0.0)[0]
+
+    out["evaluation_s"] = _timed_loop(evaluation, x0, xd0, consts=consts)
     real = dynamics.schur_solve
     dynamics.schur_solve = lambda p, r, s_, rhs: rhs / jnp.diag(s_)  # traced once, below, then put back
     try:
-        out["evaluation_without_solve_s"] = _timed_loop(
-            lambda q, qd: dynamics._solve(mech, prep, 0.0, q, qd, 0.0)[0], x0, xd0)
+        out["evaluation_without_solve_s"] = _timed_loop(evaluation, x0, xd0, consts=consts)
     finally:
         dynamics.schur_solve = real
-    out["projection_s"] = _timed_loop(
-        lambda q, qd: project_prepared(mech, prep, q, qd, 0.0, BETWEEN_STEPS)[0], x0, xd0)
+    out["projection_s"] = _timed_loop(lambda c, q, qd: project_prepared(c[0], c[1], q, qd, 0.0, BETWEEN_STEPS)[0],
+                                      x0, xd0, consts=consts)
     s_mat = schur(prep, rows(prep, x0))
     rhs = jnp.asarray(np.random.default_rng(1).normal(size=s_mat.shape[0]))
     out["spd_solve_s"] = _timed_loop(lambda s_, b: cho_solve(cho_factor(s_), b), s_mat, rhs)
@@ -298,7 +308,7 @@ def _quarter_car_evaluation() -> dict:
     out["factorisation_batched_s"] = _timed_loop(
         jax.vmap(lambda s_: cho_factor(s_)[0]), sb, calls=QC_LOOP // batch) / batch
     member = simulate_mechanism(mech, x0, jnp.zeros_like(x0), 0.0, 1.0, solver="tsit5", rtol=QC_RTOL,
-                                atol=QC_RTOL * 1e-2, pid=(0.2, 0.4, 0.0))
+                                atol=QC_RTOL * 1e-2, pid=QC_PID)
     out["member_steps"] = [int(member.steps), int(member.rejected)]
     # What sets the step count: the largest eigenvalues of the linearised first-order field (q, qd) along the
     # unperturbed run (the constraint directions add zeros), at the start, mid-settle and the end.
@@ -499,13 +509,15 @@ def markdown(results: dict) -> str:
         lines += [f"Quarter car ({e['coords']} coordinates, {e['constraints']} constraint rows), medians per call in "
                   f"compiled loops of {QC_LOOP}: the acceleration solve **{e['evaluation_s'] * us:.1f} µs**, "
                   f"{e['evaluation_without_solve_s'] * us:.1f} µs with the multipliers' solve replaced by a division "
-                  f"by S's diagonal (no factorisation, no triangular solves, S's off-diagonal not formed); the "
+                  f"by S's diagonal (no factorisation, no triangular solves, only S's diagonal used); the "
                   f"projection between steps {e['projection_s'] * us:.1f} µs; a {e['constraints']} x "
                   f"{e['constraints']} positive-definite solve alone through JAX's LAPACK calls "
                   f"{e['spd_solve_s'] * us:.2f} µs, its factorisation {e['factorisation_s'] * us:.2f} µs (64 per call: "
                   f"{e['spd_solve_batched_s'] * us:.2f} and {e['factorisation_batched_s'] * us:.2f} µs per matrix). "
                   f"One batch member (Tsit5 PI(0.2, 0.4), rtol {QC_RTOL:g}, 1 s) takes {e['member_steps'][0]} "
-                  f"accepted and {e['member_steps'][1]} rejected steps: {6 * steps + 1} evaluations and {steps} "
+                  f"accepted and {e['member_steps'][1]} rejected steps: {6 * steps + 3} evaluations (six a step "
+                  f"attempt, the first stage reused from the last, and three before the first step: the initial step "
+                  f"selection's two and the first stage's) and {steps} "
                   "projections."
                   + (" The stiffest modes of the linearised field (1/s), which bound an explicit solver's step: "
                      + "; ".join(f"t = {t} s: " + ", ".join(_complex(v) for v in [v for v in evs if v[1] >= 0][:2])

@@ -343,7 +343,8 @@ def velocity_target(prep: Prepared, r: Rows) -> Float[Array, " C"] | float:
 #: revolute chain built with ``multipliers="least_squares"`` (40 rows; Tsit5, 0.3 s), outer products against
 #: ``E E^T``: rollout 3.18-3.20 against 3.44-3.66 ms, reverse gradient in the body masses 22.2-24.0 against 21.4-22.4
 #: ms and its compile 20.9 against 17.5-18.2 s, gradients equal to 1e-13 (two processes each, alternating); kept,
-#: for the rollouts. Not measured: sizes beyond 40 rows, gradients vmapped over parameter sets.
+#: for the rollouts. Not measured: sizes beyond 40 rows, the exact-multiplier 8-link chain's gradient, gradients
+#: vmapped over parameter sets.
 GRAM_OUTER_MAX_ROWS = 40
 
 

@@ -53,6 +53,7 @@ SwitchCrossedWarning = _ode.SwitchCrossedWarning
 
 # The projections' pass counts (FULL, BETWEEN_STEPS) are :mod:`._algebra`'s, shared with the O(N) chain path.
 
+
 def _project_euclid(mech: Mechanism, prep: Prepared, q, qd, drive):
     """Minimum-norm (``J J^T``) projection for mechanisms with a singular mass matrix (LU, 3 Gauss–Newton steps)."""
     lsq = mech.topo.least_squares

@@ -26,7 +26,7 @@ SLIDE_TOL = 1e-9
 ENERGY_TOL = 1e-8
 #: d(arm angle at T_GRAD)/d(spring stiffness), reverse mode against the reference's central difference, relative
 #: (step 1e-3 N/m; measured 5.4e-11).
-GRAD_RTOL = 1e-7
+GRAD_RTOL = 1e-8
 
 G = 9.81
 L_ARM, M_ARM = 1.2, 2.0
@@ -118,5 +118,5 @@ def test_collar_gradient_wrt_spring_stiffness(rollout):
     ts = np.array([0.0, T_GRAD])
     fd = (reference(ts, K + h)[0][-1] - reference(ts, K - h)[0][-1]) / (2 * h)
     print(f"gradient {ours:.6e} against {fd:.6e}: {abs(ours - fd) / abs(fd):.1e}")
-    assert abs(fd) > 1e-4
+    assert abs(fd) > 1e-3  # measured -7.05e-3: large against the reference's own error (~1e-12 / 2e-3 = 5e-10)
     assert abs(ours - fd) <= GRAD_RTOL * abs(fd)
