@@ -3,7 +3,7 @@
 import pytest
 
 from particlesim.inertia import RigidInertia
-from particlesim.mechanism import MechanismBuilder
+from particlesim.mechanism import MechanismBuilder, simulate_mechanism
 
 
 def _four_bar(close=True, extra_link=False, offset=0.0) -> MechanismBuilder:
@@ -30,3 +30,19 @@ def four_bar():
     """The four-bar builder factory ``four_bar(close=True, extra_link=False, offset=0.0)``."""
     return _four_bar
 
+
+
+def _released_from_rest(build, t_end, ts, *, rtol, atol):
+    """``(mech, q0, sol)``: the mechanism ``build()`` returns, released from rest at its assembly and run to
+    ``t_end``, saved at ``ts`` (the run must reach ``t_end``)."""
+    mech, q0 = build()
+    sol = simulate_mechanism(mech, q0, 0 * q0, 0.0, t_end, rtol=rtol, atol=atol, saveat_ts=ts)
+    assert bool(sol.ok)
+    return mech, q0, sol
+
+
+@pytest.fixture(scope="session")
+def released_from_rest():
+    """The factory ``released_from_rest(build, t_end, ts, *, rtol, atol) -> (mech, q0, sol)`` for module fixtures
+    of models checked against an independent solution from rest."""
+    return _released_from_rest

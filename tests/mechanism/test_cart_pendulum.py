@@ -65,11 +65,8 @@ def reference(ts, m_cart=M_CART):
 
 
 @pytest.fixture(scope="module")
-def rollout():
-    mech, q0 = build()
-    sol = simulate_mechanism(mech, q0, 0 * q0, 0.0, T_END, rtol=1e-10, atol=1e-12, saveat_ts=TS)
-    assert bool(sol.ok)
-    return mech, q0, sol
+def rollout(released_from_rest):
+    return released_from_rest(build, T_END, TS, rtol=1e-10, atol=1e-12)
 
 
 def test_cart_pendulum_is_two_dof(rollout):

@@ -101,11 +101,8 @@ def _angles(mech, qs):
 
 
 @pytest.fixture(scope="module")
-def rollout():
-    mech, q0 = build()
-    sol = simulate_mechanism(mech, q0, 0 * q0, 0.0, T_END, rtol=1e-11, atol=1e-13, saveat_ts=TS)
-    assert bool(sol.ok)
-    return mech, q0, sol
+def rollout(released_from_rest):
+    return released_from_rest(build, T_END, TS, rtol=1e-11, atol=1e-13)
 
 
 def test_rssr_is_one_dof_loop(rollout):
