@@ -1,22 +1,39 @@
 """Threads for batches passed from Python: one batched program gains little from a second core (XLA:CPU hands its
 small operations, and a rollout's loop, between the threads of its pool without running faster), so a second core
 is used by a second program running beside the first. Batch entries split a concrete batch into parts and run the
-same compiled program on each part, one per thread; the parts run under the calling thread's JAX settings."""
+same compiled program on each part, one per thread; the parts run under the calling thread's JAX settings.
+
+Programs that run side by side share XLA's intra-op thread pool (one thread per core). jaxlib's LAPACK kernels
+(Cholesky, LU, triangular solves, QR, eigen- and singular-value decompositions) split a *batch* of matrices whose
+estimated work reaches :data:`LAPACK_INLINE_WORK` flops into pieces on that pool and block the pool thread they run on
+until the pieces are done. Two such kernels running at once from two programs on a two-thread pool each hold one
+thread and wait for pieces that only the other thread could run: neither returns. A program is therefore split
+only when it has no such kernel (:func:`splits_safely`, read off its lowered text); particlesim's own batch programs
+keep their batched factorisations under the bound (:func:`inline_batch`), and a program that has one runs unsplit
+(its kernels then use the pool themselves). A part that still does not finish is reported, not waited for without
+bound (:func:`run_parts`: :data:`STALL_SECONDS`, :data:`TIMEOUT_SECONDS`)."""
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures as cf
 import contextlib
-import functools
+import math
 import os
+import queue
+import re
 import threading
+import time
+import weakref
 from collections.abc import Callable, Sequence
 
 import jax
-from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["usable_cores", "pool", "run_parts", "threads_apply"]
+from .errors import BatchStalledError
 
-_pools: dict[int, ThreadPoolExecutor] = {}
+__all__ = ["usable_cores", "run_parts", "threads_apply", "splits_safely", "inline_batch", "fanning_kernels",
+           "LAPACK_INLINE_WORK", "STALL_SECONDS", "TIMEOUT_SECONDS"]
+
 _lock = threading.Lock()
 
 
@@ -62,38 +79,178 @@ def _read_quota(root: str = "/sys/fs/cgroup") -> int | None:
         return None
 
 
-def pool(workers: int) -> ThreadPoolExecutor:
-    """A pool of ``workers`` threads, made on first use and kept (a thread's start costs ~50 us)."""
-    p = _pools.get(workers)
-    if p is None:
-        with _lock:
-            p = _pools.setdefault(workers, ThreadPoolExecutor(workers, thread_name_prefix="particlesim-batch"))
-    return p
+# --- LAPACK kernels that spread a batch over XLA's intra-op pool -------------------------------------------------
+
+#: The estimated work (flops) of one batched LAPACK call from which jaxlib spreads its matrices over XLA's intra-op
+#: pool and blocks the calling pool thread until they are done (jaxlib's ``kMinWorkPerTask``, 2e5 in jaxlib 0.10.2);
+#: below it the call runs on its own thread. Work per matrix is counted here as ``m n max(m, n)``, at least
+#: jaxlib's own estimate for every kernel, so a program judged safe is safe.
+LAPACK_INLINE_WORK = 200_000
+
+_CUSTOM_CALL = re.compile(r"custom_call @(lapack_\w+)\(.*?\)[^\n]*?: \((tensor<[^>]*>)")
+_TENSOR = re.compile(r"tensor<((?:\d+x)*)\w+>")
 
 
-def run_parts(fn: Callable, parts: Sequence[tuple]) -> list:
-    """``[fn(*args) for args in parts]``, the first on this thread and the others on a kept pool's threads, handed
-    over before this thread starts its own (an earlier measurement found a program dispatched asynchronously first
-    holding back those dispatched after it from other threads, two 0.25 s loops taking 0.50-0.54 s; not reproduced on
-    2026-12-06, jaxlib 0.10.2: either order 0.24-0.26 s; the order is kept, harmless either way). A part the pool has
-    not started by the time this thread is done is taken back and run here, so that a part whose program calls back
-    into Python and starts another batch cannot wait on itself. The pool's threads run their parts under the JAX
-    settings this thread has set locally (``jax.default_device``, ``jax.debug_nans``... as context managers:
-    :func:`local_settings`). Exceptions reach the caller."""
-    if len(parts) <= 1:
-        return [fn(*args) for args in parts]
-    settings = local_settings()
-    call = functools.partial(_under, settings, fn) if settings else fn
-    rest = [pool(len(parts) - 1).submit(call, *args) for args in parts[1:]]
+def fanning_kernels(text: str) -> list[str]:
+    """The LAPACK calls of a lowered program (its StableHLO text) that take a batch of matrices large enough to be
+    spread over XLA's intra-op pool (:data:`LAPACK_INLINE_WORK`), as ``"target (shape)"``."""
+    found = []
+    for target, tensor in _CUSTOM_CALL.findall(text):
+        dims = [int(d) for d in _TENSOR.match(tensor).group(1).split("x") if d]
+        if len(dims) < 3:
+            continue  # one matrix: always run on the calling thread
+        batch, (m, n) = math.prod(dims[:-2]), dims[-2:]
+        if batch >= 2 and batch * m * n * max(m, n) >= LAPACK_INLINE_WORK:
+            found.append(f"{target} ({'x'.join(map(str, dims))})")
+    return found
+
+
+def inline_batch(n: int, m: int | None = None) -> int:
+    """How many ``m x n`` (default square) matrices one batched LAPACK call may take and still run on the calling
+    thread (:data:`LAPACK_INLINE_WORK`): the block size for factorisations of a batch inside a program that may run
+    beside another (``jax.lax.map(..., batch_size=inline_batch(n))``)."""
+    m = n if m is None else m
+    return max(1, (LAPACK_INLINE_WORK - 1) // max(1, m * n * max(m, n)))
+
+
+_SAFE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # jitted -> {key: verdict}
+
+
+def splits_safely(jitted, args: tuple, key) -> bool:
+    """Whether the program ``jitted(*args)`` may run beside copies of itself on other threads: it has no LAPACK call
+    that spreads a batch over XLA's intra-op pool (:func:`fanning_kernels`). Lowered once per ``jitted`` and ``key``
+    (the program's structure and argument shapes, which the caller knows); a program that cannot be lowered here
+    counts as unsafe (run unsplit, it raises its own error)."""
     try:
-        outs = [fn(*parts[0])]
-        for f, args in zip(rest, parts[1:]):
-            outs.append(fn(*args) if f.cancel() else f.result())
+        known = _SAFE.setdefault(jitted, {})
+    except TypeError:  # not weakly referable: look it up every time
+        known = {}
+    ok = known.get(key)
+    if ok is None:
+        try:
+            ok = not fanning_kernels(jitted.lower(*args).as_text())
+        except Exception:
+            ok = False
+        known[key] = ok
+    return ok
+
+
+# --- The parts' threads and the watch over them -----------------------------------------------------------------
+
+#: A split batch none of whose unfinished parts has advanced for this many seconds, while the process used less than
+#: :data:`_IDLE_SHARE` of one core, raises :class:`~particlesim.errors.BatchStalledError`: running parts keep a
+#: core busy; deadlocked ones keep none. ``None``: never.
+STALL_SECONDS: float | None = 60.0
+
+#: A split batch not finished after this many seconds raises :class:`~particlesim.errors.BatchStalledError`, busy or
+#: not. ``None`` (default): no bound beyond :data:`STALL_SECONDS`.
+TIMEOUT_SECONDS: float | None = None
+
+_IDLE_SHARE = 0.05  # of one core: below this the process is idle (its waiting threads cost nothing)
+_TICK = 0.5  # seconds between looks at a stalled batch
+
+
+class _Worker(threading.Thread):
+    """A daemon thread that runs one part at a time and goes back to the idle list: a part that never returns keeps
+    its thread (not the caller, nor the interpreter's exit)."""
+
+    def __init__(self):
+        super().__init__(name=f"particlesim-part-{next(_names)}", daemon=True)
+        self.tasks: queue.SimpleQueue = queue.SimpleQueue()
+
+    def run(self):
+        while True:
+            future, fn, args = self.tasks.get()
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(fn(*args))
+                except BaseException as e:  # to the caller
+                    future.set_exception(e)
+            future = fn = args = None
+            with _lock:
+                _idle.append(self)
+
+
+_idle: list[_Worker] = []
+_names = iter(range(1 << 62))
+
+
+def _submit(fn: Callable, *args) -> tuple[cf.Future, str]:
+    """``fn(*args)`` on an idle worker (a new one if none is idle: a batch started from inside a part gets threads of
+    its own rather than waiting for its parent's); its future and the thread's name."""
+    with _lock:
+        worker = _idle.pop() if _idle else None
+    if worker is None:
+        worker = _Worker()
+        worker.start()
+    future: cf.Future = cf.Future()
+    worker.tasks.put((future, fn, args))
+    return future, worker.name
+
+
+def run_parts(fn: Callable, parts: Sequence[tuple], *, what: str = "a batch",
+              describe: Callable[[int], str] | None = None) -> list:
+    """``[fn(*args) for args in parts]``, each part on its own worker thread with its outputs waited for there
+    (``jax.block_until_ready``), under the JAX settings this thread has set locally (``jax.default_device``,
+    ``jax.debug_nans``... as context managers: :func:`local_settings`). Exceptions reach the caller. The caller waits
+    with a bound: a part that stalls (:data:`STALL_SECONDS`) or outlasts :data:`TIMEOUT_SECONDS` raises
+    :class:`~particlesim.errors.BatchStalledError` naming ``what`` (the batch), the part (``describe(k)``, e.g. its
+    members) and its thread."""
+    if len(parts) <= 1:
+        return [jax.block_until_ready(fn(*args)) for args in parts]
+    settings = local_settings()
+    submitted = [_submit(_part, settings, fn, args) for args in parts]
+    futures = [f for f, _ in submitted]
+    try:
+        _wait(futures, [name for _, name in submitted], what, describe)
+        return [f.result() for f in futures]
     except BaseException:
-        for f in rest:  # parts not started yet are dropped; running ones finish on their own
+        for f in futures:  # parts not started yet are dropped; running ones finish on their own
             f.cancel()
         raise
-    return outs
+
+
+def _part(settings: tuple, fn: Callable, args: tuple):
+    if not settings:
+        return jax.block_until_ready(fn(*args))
+    with settings_applied(settings):
+        return jax.block_until_ready(fn(*args))
+
+
+def _wait(futures: list, threads: list[str], what: str, describe) -> None:
+    """Until every future is done (or one failed: the caller raises it); :class:`BatchStalledError` when no part has
+    finished for :data:`STALL_SECONDS` while the process stayed idle, or past :data:`TIMEOUT_SECONDS`."""
+    start = time.monotonic()
+    pending = set(futures)
+    marks = collections.deque([(start, time.process_time())])  # (time, process CPU time) since the last finish
+    while pending:
+        stall, timeout = STALL_SECONDS, TIMEOUT_SECONDS
+        bounded = stall is not None or timeout is not None
+        done, pending = cf.wait(pending, timeout=_TICK if bounded else None, return_when=cf.FIRST_COMPLETED)
+        now, cpu = time.monotonic(), time.process_time()
+        if done:
+            if any(f.exception() is not None for f in done):
+                return
+            marks = collections.deque([(now, cpu)])
+            continue
+        marks.append((now, cpu))
+        if stall is not None:  # the oldest mark kept is the newest at least `stall` seconds old
+            while len(marks) > 1 and now - marks[1][0] >= stall:
+                marks.popleft()
+        t0, c0 = marks[0]
+        busy = (cpu - c0) / max(now - t0, 1e-9)
+        stalled = stall is not None and now - t0 >= stall and busy < _IDLE_SHARE
+        late = timeout is not None and now - start >= timeout
+        if stalled or late:
+            k = next(i for i, f in enumerate(futures) if f in pending)
+            part = describe(k) if describe else f"part {k + 1} of {len(futures)}"
+            why = (f"no part finished in the last {now - t0:.0f} s, while the process used {100 * busy:.1f} % of "
+                   f"a core (particlesim._threads.STALL_SECONDS = {stall})" if stalled else
+                   f"not finished after {now - start:.0f} s (particlesim._threads.TIMEOUT_SECONDS = {timeout})")
+            raise BatchStalledError(
+                f"{what}: {part}, on thread {threads[k]!r}, {why}; {len(pending)} of {len(futures)} parts are "
+                "unfinished. Run the batch unsplit (threads=1; for tree batches particlesim.tree.aba.BATCH_THREADS "
+                "= 1): its parts wait on each other")
 
 
 #: Thread-local JAX settings never carried to the pool's threads: the thread guard marks the one thread allowed to
@@ -161,11 +318,6 @@ def settings_applied(settings: tuple):
                 error = error or e
         if error is not None:
             raise error
-
-
-def _under(settings: tuple, fn: Callable, *args):
-    with settings_applied(settings):
-        return fn(*args)
 
 
 def threads_apply(platform: str | None = None) -> bool:

@@ -32,7 +32,7 @@ from jax.sharding import Mesh, PartitionSpec as P
 
 from . import _xla
 from ._ode import _concrete
-from ._threads import run_parts, threads_apply, usable_cores
+from ._threads import run_parts, splits_safely, threads_apply, usable_cores
 
 __all__ = ["AXIS", "batch_mesh", "stack", "param_axes", "sharded_vmap"]
 
@@ -183,6 +183,8 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
         return jax.shard_map(per_device, mesh=mesh, in_specs=tuple(specs), out_specs=P(AXIS),
                              check_vma=False)(*args)
 
+    name = getattr(fn, "__name__", type(fn).__name__)
+
     def call(*args):
         parts = 1
         if ndev == 1 and _xla.top_level() and threads_apply(mesh.devices.flat[0].platform):
@@ -198,7 +200,7 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
                 per = -(-b // (parts * unit)) * unit  # members per part, a whole number of chunks
                 parts = -(-b // per)
                 if parts > 1:
-                    return _in_parts(run, leaves, treedef, axes, b, per, parts)
+                    return _in_parts(run, leaves, treedef, axes, b, per, parts, name)
         return run(*args)
 
     call.jit = run  # the compiled program (of one part, or of the whole batch)
@@ -209,9 +211,11 @@ def sharded_vmap(fn: Callable, in_axes: int | None | Sequence[Any] = 0, *, mesh:
     return call
 
 
-def _in_parts(run, leaves, treedef, axes, b: int, per: int, parts: int):
-    """``run`` on ``parts`` parts of ``per`` members, the first on this thread and the others on pool threads; the
-    batch padded to ``parts * per`` members with copies of its last one, cut off after."""
+def _in_parts(run, leaves, treedef, axes, b: int, per: int, parts: int, name: str):
+    """``run`` on ``parts`` parts of ``per`` members, each on its own thread (:func:`particlesim._threads.run_parts`);
+    the batch padded to ``parts * per`` members with copies of its last one, cut off after. A part program with a
+    LAPACK call spreading a batch over XLA's intra-op pool (:func:`particlesim._threads.splits_safely`: e.g. a
+    factorisation per member under ``vmap``) cannot run beside its copies: the batch then runs as one program."""
     pad = parts * per - b
     chunks = [[] for _ in range(parts)]
     for leaf, ax in zip(leaves, axes):
@@ -224,13 +228,13 @@ def _in_parts(run, leaves, treedef, axes, b: int, per: int, parts: int):
         else:
             for k in range(parts):
                 chunks[k].append(leaf)
-    outs = run_parts(_run_blocked, [(run, jax.tree.unflatten(treedef, c)) for c in chunks])
+    args = [jax.tree.unflatten(treedef, c) for c in chunks]
+    key = (treedef, tuple((jnp.shape(x), jnp.result_type(x), ax) for x, ax in zip(chunks[0], axes)))
+    if not splits_safely(run, args[0], key):
+        return run(*jax.tree.unflatten(treedef, leaves))
+    outs = run_parts(run, args, what=f"sharded_vmap({name}) over a batch of {b} in {parts} parts",
+                     describe=lambda k: f"part {k + 1} (members {k * per}..{min(b, (k + 1) * per) - 1})")
     return _join(outs, b)
-
-
-def _run_blocked(run, args):
-    """One part, dispatched and waited for on its thread (:func:`particlesim._threads.run_parts`)."""
-    return jax.block_until_ready(run(*args))
 
 
 @functools.partial(jax.jit, static_argnames="size")

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 __all__ = ["ModelError", "InertiaError", "PlacementError", "NegativeMassWarning", "ParseError", "DataError",
-           "InertiaWarning"]
+           "InertiaWarning", "BatchStalledError"]
 
 
 class ModelError(ValueError):
@@ -34,3 +34,7 @@ class NegativeMassWarning(UserWarning):
 class InertiaWarning(UserWarning):
     """A model file's inertia is not physical and was loaded anyway (``inertia="warn"``) or repaired
     (``inertia="balance"``); the message names every such link."""
+
+
+class BatchStalledError(RuntimeError):
+    """A batch split over threads did not finish within its bound; names the batch, the part and its thread."""

@@ -151,9 +151,9 @@ def test_batches_split_over_threads_on_one_device(krang, monkeypatch):
     parted = []
     real = batch_module._in_parts
 
-    def spy(run, leaves, treedef, ax, size, per, parts):
+    def spy(run, leaves, treedef, ax, size, per, parts, name):
         parted.append((size, per, parts))
-        return real(run, leaves, treedef, ax, size, per, parts)
+        return real(run, leaves, treedef, ax, size, per, parts, name)
 
     monkeypatch.setattr(batch_module, "_in_parts", spy)
     one = sharded_vmap(rollout, axes, mesh=mesh, chunk=2, threads=1)(models, q0, qd0)

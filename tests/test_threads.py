@@ -1,9 +1,13 @@
-"""Batches split over threads: the core count (affinity and control-group quota) and the parts' runner."""
+"""Batches split over threads: the core count (affinity and control-group quota), the parts' runner, its watch over
+stalled parts, and the LAPACK batches that keep a program from running beside its copies."""
 
 import os
 import threading
+import time
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from particlesim import _threads
@@ -122,3 +126,75 @@ def test_settings_are_all_restored_when_one_fails_to():
         with _threads.settings_applied(((good, "caller's"), (bad, "caller's"), (other, "caller's"))):
             assert good.value == bad.value == other.value == "caller's"
     assert good.value == other.value == "process"
+
+
+def test_lapack_batches_spread_over_the_pool_are_found_in_a_lowered_program():
+    """A batched factorisation whose work reaches jaxlib's bound (``LAPACK_INLINE_WORK`` flops, counted as
+    ``m n max(m, n)`` per matrix) is spread over XLA's intra-op pool; one matrix, or a small batch, runs on its own
+    thread. ``inline_batch`` gives the largest batch under the bound."""
+    def lowered(shape):
+        return jax.jit(jnp.linalg.cholesky).lower(jnp.zeros(shape)).as_text()
+
+    assert _threads.fanning_kernels(lowered((200, 200))) == []  # one matrix: never spread
+    assert _threads.fanning_kernels(lowered((2, 36, 36))) == []  # 2 x 36^3 = 93312 < 2e5
+    found = _threads.fanning_kernels(lowered((5, 36, 36)))  # 233280
+    assert len(found) == 1 and found[0].startswith("lapack_dpotrf") and "5x36x36" in found[0]
+    assert _threads.fanning_kernels(lowered((2, 8, 3, 3))) == []  # batch axes multiply: 16 x 27
+    for n in (3, 18, 36, 59, 60, 122):
+        k = _threads.inline_batch(n)
+        assert _threads.fanning_kernels(lowered((k, n, n))) == []
+        assert _threads.fanning_kernels(lowered((k + 1, n, n))) != [] or k == 1
+
+
+def test_a_vmapped_factorisation_runs_unsplit_and_a_member_loop_splits(monkeypatch):
+    """``sharded_vmap`` over members each factorising a matrix: vectorised, the part program has one batched
+    factorisation that would spread over the pool, so the batch runs as one program; member by member (``chunk=1``)
+    it is split. Both equal NumPy's factors."""
+    from particlesim import batch as batch_module
+    from particlesim.batch import sharded_vmap
+
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(16, 40, 40))
+    spd = jnp.asarray(a @ np.swapaxes(a, 1, 2) + 40 * np.eye(40))
+    calls = []
+    real = batch_module.run_parts
+    monkeypatch.setattr(batch_module, "run_parts", lambda *a, **k: calls.append(1) or real(*a, **k))
+    ref = np.linalg.cholesky(np.asarray(spd))
+    out = sharded_vmap(jnp.linalg.cholesky, threads=2)(spd)
+    assert calls == [] and np.allclose(out, ref, rtol=1e-12, atol=0)
+    out = sharded_vmap(jnp.linalg.cholesky, chunk=1, threads=2)(spd)
+    assert calls == [1] and np.allclose(out, ref, rtol=1e-12, atol=0)
+
+
+def test_a_stalled_part_raises_naming_the_batch_part_and_thread(monkeypatch):
+    """A part that waits and never finishes (here: on an event; a deadlock looks alike, the process idle) raises
+    ``BatchStalledError`` after ``STALL_SECONDS``, naming the batch, the part and its thread; a part busy for longer
+    than that is not stalled; ``TIMEOUT_SECONDS`` bounds even a busy one."""
+    from particlesim.errors import BatchStalledError
+
+    monkeypatch.setattr(_threads, "STALL_SECONDS", 1.0)
+    monkeypatch.setattr(_threads, "_TICK", 0.1)
+    release = threading.Event()
+
+    def part(k):
+        if k == 1:
+            release.wait(60)
+        return k
+
+    try:
+        with pytest.raises(BatchStalledError, match=r"my batch: part 2 of 3, on thread 'particlesim-part-\d+', no "
+                                                    r"part finished in the last \d s"):
+            _threads.run_parts(part, [(0,), (1,), (2,)], what="my batch")
+    finally:
+        release.set()
+
+    def busy(k, seconds=2.5):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            pass
+        return k
+
+    assert _threads.run_parts(busy, [(0,), (1,)]) == [0, 1]  # busy for 2.5 s: not stalled
+    monkeypatch.setattr(_threads, "TIMEOUT_SECONDS", 0.5)
+    with pytest.raises(BatchStalledError, match=r"members 0\.\.9, on thread .* not finished after"):
+        _threads.run_parts(busy, [(0,), (1,)], what="b", describe=lambda k: f"members {10 * k}..{10 * k + 9}")

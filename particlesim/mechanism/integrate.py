@@ -46,6 +46,7 @@ from .dynamics import _solve
 from .forces import tyre_deflections
 from .model import NON_NEGATIVE, Mechanism
 from .._jit import compiled
+from .._threads import inline_batch
 
 __all__ = ["ADJOINTS", "project", "simulate_mechanism", "SwitchCrossedWarning"]
 
@@ -266,8 +267,10 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
             cfg=cfg, projection=projection if stabilise else None, hint=_budget_hint(mech, cfg.solver, solve))
     if stabilise and (cfg.save_ts or max_events):  # saved states interpolated inside steps: onto the constraints
         qs, qds = jax.lax.map(lambda tab: full_projection(tab[0], tab[1:], args0), (ts_, qs, qds))
-    elif stabilise:  # saved at t0 and t1 only: both to round-off (t1 ends a lighter projection)
-        qs, qds = jax.vmap(lambda t, q, qd: full_projection(t, (q, qd), args0))(ts_, qs, qds)
+    elif stabilise:  # saved at t0 and t1 only: both to round-off (t1 ends a lighter projection); together while
+        # their two factorisations stay on this thread in one LAPACK call (particlesim._threads.inline_batch)
+        qs, qds = jax.lax.map(lambda tab: full_projection(tab[0], tab[1:], args0), (ts_, qs, qds),
+                              batch_size=inline_batch(max(1, mech.n_constraints)))
     if warn_switch:  # a differentiated rollout stepping across a tyre's switch: say so (derivatives are biased)
         touching = jax.vmap(lambda q: deflections(q, mech, prep) < 0.0)(jnp.concatenate([q0[None], qs]))
         jax.debug.callback(_warn_switches, jnp.any(touching[1:] != touching[:-1], axis=0),

@@ -31,7 +31,7 @@ from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
 from .. import _ode
 from .._jit import _as_array, compiled
-from .._threads import run_parts, threads_apply
+from .._threads import inline_batch, run_parts, splits_safely, threads_apply
 from .._xla import top_level
 from .._ode import _ArrayImpl
 from .._linalg import spd_solve_applied
@@ -329,7 +329,9 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     if concrete and not by_state:
         parts = batch_parts(size, links)
         if parts > 1 and threads_apply():  # a part per core, each on its own thread
-            return _in_parts(model, q, qd, tau, smooth_friction, size, parts, depth)
+            out = _in_parts(model, q, qd, tau, smooth_friction, size, parts, depth)
+            if out is not None:
+                return out
     wide = wide_batch(size, links, depth) and supports_aba(model)
     entry = _batched_wide if wide else _batched  # the same program; other XLA options for wide batches
     return entry(model, q, qd, tau, smooth_friction, by_state)
@@ -353,11 +355,13 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction, by_state=False):
     :func:`~.aba.state_by_state`): a loop over the one-state program. Wide batches go through :data:`_batched_wide`,
     the same function compiled with other XLA options."""
     per_state = functools.partial(_forward_dynamics, model, smooth_friction=smooth_friction)
-    if not supports_aba(model):
-        return jnp.vectorize(per_state, signature="(a),(b),(b)->(b)")(q, qd, tau)
-    if by_state:  # a few states: one after another
+    if by_state or not supports_aba(model):  # one after another; or composite inertias, in blocks
+        # Blocks of states whose Cholesky factorisations one LAPACK call runs on its own thread: a larger batch of
+        # them would spread over XLA's intra-op pool and block it, so that two parts could wait on each other
+        # (particlesim._threads).
         flat = tuple(x.reshape(-1, x.shape[-1]) for x in (q, qd, tau))
-        out = jax.lax.map(lambda x: per_state(*x), flat)
+        block = None if by_state else inline_batch(model.nv)
+        out = jax.lax.map(lambda x: per_state(*x), flat, batch_size=block)
         return out.reshape(q.shape[:-1] + out.shape[-1:])
     rhs = tau
     if any(x is not None for x in (model.viscous, model.coulomb, model.stiffness, model.limits)):
@@ -382,23 +386,23 @@ def _batched(model: TreeModel, q, qd, tau, smooth_friction, by_state=False):
 
 def _in_parts(model: TreeModel, q, qd, tau, smooth_friction, size: int, parts: int, depth: int):
     """A concrete batch in ``parts`` equal parts of ``count`` states, each run by one compiled program
-    (:func:`_batched_part`) on its own thread: this one and ``parts - 1`` of a kept pool's. The parts start at
+    (:func:`_batched_part`) on its own thread (:func:`particlesim._threads.run_parts`). The parts start at
     ``i * count``, the last at ``size - count`` (it overlaps its neighbour when ``parts`` does not divide ``size``;
-    :func:`_join` drops the repeated states)."""
+    :func:`_join` drops the repeated states). ``None`` when the part program cannot run beside its copies
+    (:func:`particlesim._threads.splits_safely`): the caller then runs the batch as one program."""
     count = -(-size // parts)
     parts = -(-size // count)  # (many parts of a small batch: fewer, so that at most the last one overlaps)
     wide = wide_batch(count, model.n_joints, depth) and supports_aba(model)
     entry = _batched_part_wide if wide else _batched_part
     starts = [min(i * count, size - count) for i in range(parts)]
-    outs = run_parts(_run, [(entry, model, q, qd, tau, _offset(s), smooth_friction, count) for s in starts])
+    args = [(model, q, qd, tau, _offset(s), smooth_friction, count) for s in starts]
+    key = (jax.tree.structure(model), q.shape, qd.shape, tau.shape, smooth_friction, count)
+    if not splits_safely(entry.jit, args[0], key):  # run unsplit (None); not met by our own programs (_batched)
+        return None
+    # Concurrent first calls compile once (JAX waits for a compile in flight; TopJit builds its jit under a lock).
+    outs = run_parts(entry, args, what=f"forward_dynamics over a batch of {size} states in {parts} parts",
+                     describe=lambda k: f"part {k + 1} (states {starts[k]}..{starts[k] + count - 1})")
     return _join(tuple(outs), parts * count - size, q.shape[:-1])
-
-
-def _run(entry, *args):
-    """One part, dispatched and waited for on its thread (:func:`particlesim._threads.run_parts` hands the pool's
-    parts over first and explains the order). Concurrent first calls compile once (JAX waits for a compile in flight;
-    :class:`particlesim._xla.TopJit` builds its jit under a lock)."""
-    return jax.block_until_ready(entry(*args))
 
 
 @functools.lru_cache(maxsize=256)

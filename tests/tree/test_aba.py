@@ -507,8 +507,7 @@ def test_batch_parts_by_cores_and_work(monkeypatch):
 
 @pytest.mark.parametrize("threads", [2, 3, 25])
 def test_batches_split_over_threads(small_tree, threads, monkeypatch):
-    """A batch passed from Python runs in parts on as many threads (the parts' program on this one and on pool
-    threads): 70 states over leading axes (2, 35), broadcast from ``qd`` of shape (35, n), in 2 parts of 35, 3 of
+    """A batch passed from Python runs in parts on as many threads (each part on a worker thread of its own): 70 states over leading axes (2, 35), broadcast from ``qd`` of shape (35, n), in 2 parts of 35, 3 of
     24 (the last starting at state 46, its first two states dropped), or for 25 threads 24 parts of 3 (25 parts of
     3 would start two at state 67). The same values as one program and as state by
     state, the batch's shape kept; the parts' program traced once, also for new states and parameter values; inside a
@@ -526,13 +525,15 @@ def test_batches_split_over_threads(small_tree, threads, monkeypatch):
     monkeypatch.setattr(aba_module, "BATCH_THREADS", threads)
     assert aba_module.batch_parts(70, small_tree.n_joints) == threads
     ran = []
-    real_run = dynamics._run
+    real_run_parts = dynamics.run_parts
 
-    def spy(entry, *args):
-        ran.append((threading.current_thread().name, args[4].item()))
-        return real_run(entry, *args)
+    def spy(fn, parts, **kwargs):
+        def part(*args):
+            ran.append((threading.current_thread().name, args[4].item()))
+            return fn(*args)
+        return real_run_parts(part, parts, **kwargs)
 
-    monkeypatch.setattr(dynamics, "_run", spy)
+    monkeypatch.setattr(dynamics, "run_parts", spy)
     name = "forward_dynamics batch part"
     before = _ode.TRACES[name]
     out = forward_dynamics(small_tree, q, qd, tau, smooth_friction=0.1)
@@ -541,10 +542,7 @@ def test_batches_split_over_threads(small_tree, threads, monkeypatch):
     parts = -(-70 // count)
     assert parts == (24 if threads == 25 else threads)
     assert sorted(s for _, s in ran) == [min(i * count, 70 - count) for i in range(parts)]
-    main = threading.current_thread().name
-    assert [t for t, s in ran if s == 0] == [main]  # the first part on this thread, others on the pool's
-    if threads <= 3:  # (with 24 parts the caller may take back parts the pool has not started: allowed)
-        assert any(t.startswith("particlesim-batch") for t, _ in ran)
+    assert len({t for t, _ in ran}) == parts and all(t.startswith("particlesim-part") for t, _ in ran)
     assert max_rel(out, whole) <= SAME_RTOL
 
     def by_state(model):
@@ -563,9 +561,9 @@ def test_batches_split_over_threads(small_tree, threads, monkeypatch):
 
 
 def test_parts_nested_in_parts_do_not_wait_on_themselves():
-    """A part that itself starts a batch in parts (as a program calling back into Python could) on the same kept
-    pool: parts the pool has not started are taken back by the waiting thread, so nesting finishes (a watchdog
-    thread bounds the wait)."""
+    """A part that itself starts a batch in parts (as a program calling back into Python could): the nested parts
+    get worker threads of their own rather than waiting for their parents', so nesting finishes (a watchdog thread
+    bounds the wait)."""
     from particlesim._threads import run_parts
 
     def part(depth):
