@@ -11,6 +11,7 @@ from .forces import body_angular_velocity, generalized_forces, potential_energy,
 from .integrate import SwitchCrossedWarning, project, simulate_mechanism
 from .kinematics import KinematicSolution, kinematic_analysis
 from .model import AppliedForce, AppliedTorque, BodyLoad, BodyState, Mechanism
+from .statics import Equilibrium, static_equilibrium
 from .outputs import (body_angles, body_com_positions, body_poses, body_reactions, body_velocities, cut_joint_forces,
                       driver_efforts, joint_reaction, point_positions)
 
@@ -52,6 +53,8 @@ __all__ = [
     "SwitchCrossedWarning",
     "kinematic_analysis",
     "KinematicSolution",
+    "static_equilibrium",
+    "Equilibrium",
     "driver_efforts",
     "body_poses",
     "body_com_positions",

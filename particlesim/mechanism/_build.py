@@ -9,8 +9,9 @@ and the checks (assembly residuals, rank, degrees of freedom, mass on every admi
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import warnings
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import jax.numpy as jnp
 import numpy as np
@@ -293,13 +294,13 @@ class _Build:
         springs, tyres = [], []
         for name, a, b, k, c, l0 in mb._springs:
             springs.append((name, (self.pidx(a, f"spring '{name}'"), self.pidx(b, f"spring '{name}'")), k, c, l0))
-        for name, pt, normal, k, c, radius, g, apply_at in mb._tyres:
+        for name, pt, normal, k, c, radius, g, apply_at, road in mb._tyres:
             nrm = np.linalg.norm(normal)
             if normal.shape != (3,) or not np.isfinite(nrm) or nrm == 0:
                 raise ModelError(f"tyre '{name}': normal must be a non-zero vector of 3 numbers")
             at = self.pidx(pt if apply_at is None else apply_at, f"tyre '{name}' (application point)")
             tyres.append((name, self.pidx(pt, f"tyre '{name}'"), tuple(float(v) for v in normal / nrm), k, c,
-                          radius, g, at))
+                          radius, g, at, road))
         applied = []
         for cls, name, target, fn in mb._applied:
             if cls is AppliedForce:
@@ -339,6 +340,8 @@ class _Build:
             spring_names=tuple(s[0] for s in springs), spring_points=tuple(s[1] for s in springs),
             tyre_names=tuple(t[0] for t in tyres), tyre_points=tuple(t[1] for t in tyres),
             tyre_normals=tuple(t[2] for t in tyres), tyre_apply=tuple(t[7] for t in tyres),
+            tyre_road_args=tuple(0 if t[8] is None else _road_arity(t[0], t[8]) for t in tyres)
+            if any(t[8] is not None for t in tyres) else (),
             saddle_point=any(i not in in_body for i in free), planar=mb.planar,
             rotational_names=tuple(r[0] for r in rot), rotational_bodies=tuple(r[1] for r in rot),
             drive=DriveRows(a=tuple(r[0] for r in self.drv), b=tuple(r[1] for r in self.drv),
@@ -369,7 +372,8 @@ class _Build:
             gravity=f(mb.gravity), rotational_stiffness=f([r[2] for r in rot]).reshape(-1),
             rotational_damping=f([r[3] for r in rot]).reshape(-1),
             rotational_free_angle=f([r[4] for r in rot]).reshape(-1), applied=tuple(applied), topo=topo,
-            drive_offset=f([r[4] for r in self.drv]).reshape(-1), drive_fns=tuple(r[6] for r in self.drv))
+            drive_offset=f([r[4] for r in self.drv]).reshape(-1), drive_fns=tuple(r[6] for r in self.drv),
+            tyre_roads=tuple(t[8] for t in tyres) if topo.tyre_road_args else ())
 
 
 def _np_point_weights(bd: _Build, topo: Topology) -> np.ndarray:
@@ -525,3 +529,27 @@ def _redundant_rows(j: np.ndarray, labels: list[str]) -> tuple[str, ...]:
             continue
         kept = np.vstack([kept, r / nr])
     return tuple(out) if out else ("?",)
+
+
+def _road_arity(name: str, road: Callable) -> int:
+    """How many arguments a tyre's road function takes, ``ground(t)`` (1) or ``ground(t, p)`` (2) (its required
+    positional parameters), checked by one call at ``t = 0`` (``p`` at the origin): it must return one finite
+    number."""
+    try:
+        sig = inspect.signature(road)
+    except (TypeError, ValueError):
+        sig = None
+    kinds = (inspect.Parameter.POSITIONAL_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
+    n = None if sig is None else sum(p.kind in kinds and p.default is p.empty for p in sig.parameters.values())
+    if n not in (1, 2):
+        raise ModelError(f"tyre '{name}': the road function must take (t) or (t, p), got "
+                         f"{'an unreadable signature' if sig is None else f'signature {sig}'}")
+    try:
+        v = np.asarray(road(*(jnp.asarray(0.0), jnp.zeros(3))[:n]), dtype=float)
+    except Exception as e:  # noqa: BLE001 — report any failure of the user's function with the tyre's name
+        raise ModelError(f"tyre '{name}': ground{('(t)', '(t, p)')[n - 1]} failed at t = 0: "
+                         f"{type(e).__name__}: {e}") from None
+    if v.shape != () or not np.isfinite(v):
+        raise ModelError(f"tyre '{name}': the road function must return one finite number (the ground's height), "
+                         f"got {v.tolist()!r} at t = 0")
+    return n

@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import ModelError
 from ..inertia import RigidInertia
 from ..particles import N_PRIMARY
-from ._build import ASSEMBLY_RTOL, RANK_RTOL, ConstraintRank, RedundantConstraintsWarning, _Build
+from ._build import ASSEMBLY_RTOL, RANK_RTOL, ConstraintRank, RedundantConstraintsWarning, _Build, _road_arity
 from .joints import (CutJoint, Cylindrical, DriveAngle, DrivePosition, Fixed, Link, OnLine, PlanarPrismatic, Prismatic,
                      Universal, unit)
 from .model import AppliedForce, AppliedTorque, BodyLoad, Mechanism
@@ -144,11 +144,8 @@ class MechanismBuilder:
         if not self.planar:
             raise ModelError(f"rotational spring '{name}': available in planar mechanisms "
                              "(MechanismBuilder(planar=True))")
-        for label, v in (("stiffness", stiffness), ("damping", damping)):
-            if not np.isfinite(v) or v < 0:
-                raise ModelError(f"rotational spring '{name}': {label} must be finite and non-negative, got {v!r}")
-        if not np.isfinite(free_angle):
-            raise ModelError(f"rotational spring '{name}': free angle must be finite, got {free_angle!r}")
+        for label, v in (("stiffness", stiffness), ("damping", damping), ("free angle", free_angle)):
+            _number(f"rotational spring '{name}'", label, v, non_negative=label != "free angle")
         if name in (r[0] for r in self._rotational):
             raise ModelError(f"rotational spring '{name}' is defined twice")
         if body_a == body_b:
@@ -230,28 +227,40 @@ class MechanismBuilder:
                       free_length: float) -> None:
         """Point-to-point spring-damper between two particles or points."""
         for label, v in (("stiffness", stiffness), ("damping", damping), ("free length", free_length)):
-            if not np.isfinite(v) or v < 0:
-                raise ModelError(f"spring '{name}': {label} must be finite and non-negative, got {v!r}")
+            _number(f"spring '{name}'", label, v)
         if name in (s[0] for s in self._springs):
             raise ModelError(f"spring '{name}' is defined twice")
         self._springs.append((name, a, b, stiffness, damping, free_length))
 
     def tyre(self, name: str, point: str, stiffness: float, damping: float, radius: float, *,
-             normal=(0.0, 0.0, 1.0), ground: float = 0.0, apply_at: Optional[str] = None) -> None:
+             normal=(0.0, 0.0, 1.0), ground: float | Callable = 0.0, apply_at: Optional[str] = None) -> None:
         """One-sided tyre spring-damper acting along ``normal`` while ``point`` (the wheel centre) is within
-        ``radius`` of the ground plane ``p.normal = ground``: force ``k (radius - d) - c d'`` with ``d`` the centre's
-        height. It acts on ``point``, or on ``apply_at`` (e.g. the contact point below the centre, a point of the
-        same body) when given: the deflection is measured at the centre and the force applied at the contact. Its
-        :func:`~.forces.potential_energy` is the deflection energy; with a separate application point the force is
-        not that energy's gradient once the body turns, so energy balances hold only for the centre-applied tyre."""
+        ``radius`` of the ground: force ``k (radius - d) - c d'`` with ``d`` the centre's height above the ground
+        along ``normal``. It acts on ``point``, or on ``apply_at`` (e.g. the contact point below the centre, a point
+        of the same body) when given: the deflection is measured at the centre and the force applied at the contact.
+        Its :func:`~.forces.potential_energy` is the deflection energy; with a separate application point the force
+        is not that energy's gradient once the body turns, so energy balances hold only for the centre-applied tyre.
+
+        ``ground``: the height of a plane ``p.normal = ground`` (a parameter, ``with_params(tyre={name: {"ground":
+        ...}})``), or the road as a JAX function: ``ground(t)`` (a post of a four-post rig under the wheel) or
+        ``ground(t, p)`` (a profile under the wheel, ``p`` the measuring point's position (3,), e.g. ``lambda t, p:
+        profile(p[0])``), returning one number; the height parameter (0) is added to it. The road's rate enters the
+        damping (``d'`` relative to the road, by autodiff), and located events (``events=True``) find contact on
+        the moving surface. The force stays along ``normal`` (a point-follower tyre: the profile's slope is not
+        turned into a horizontal force). An ``equinox.Module`` with array fields makes its arrays parameters."""
+        road = None
+        if callable(ground):
+            road, ground = ground, 0.0
+            _road_arity(name, road)
+        elif not _is_number(ground):
+            raise ModelError(f"tyre '{name}': ground must be a number (the ground plane's height) or a function "
+                             f"ground(t) or ground(t, p) of the road, got {type(ground).__name__}")
         for label, v in (("stiffness", stiffness), ("damping", damping), ("radius", radius), ("ground", ground)):
-            if not np.isfinite(v) or (label != "ground" and v < 0):
-                raise ModelError(f"tyre '{name}': {label} must be finite" + (" and non-negative" if label != "ground"
-                                                                              else "") + f", got {v!r}")
+            _number(f"tyre '{name}'", label, v, non_negative=label != "ground")
         if name in (t[0] for t in self._tyres):
             raise ModelError(f"tyre '{name}' is defined twice")
         self._tyres.append((name, point, np.asarray(normal, dtype=float), stiffness, damping, radius, ground,
-                            apply_at))
+                            apply_at, road))
 
     def applied_force(self, name: str, point: str, fn: Callable) -> None:
         """A force ``fn(t, q, qd) -> (3,)`` (global) acting at a particle or point."""
@@ -352,3 +361,18 @@ class MechanismBuilder:
         self.assembly = bd.assembly
         self.constraint_rank = bd.constraint_rank
         return out
+
+
+def _is_number(v) -> bool:
+    """A real scalar (a Python or NumPy number, or a 0-d array), not a bool, string or function."""
+    return (not isinstance(v, (bool, np.bool_, str, bytes)) and not callable(v)
+            and isinstance(v, (int, float, np.integer, np.floating, np.ndarray)) and np.ndim(v) == 0
+            and np.isrealobj(v))
+
+
+def _number(owner: str, label: str, v, *, non_negative: bool = True) -> None:
+    """Refuse, naming ``owner`` and ``label``, a value that is not a finite (non-negative) number."""
+    if not _is_number(v) or not np.isfinite(v) or (non_negative and v < 0):
+        shown = f"a {type(v).__name__}" if not _is_number(v) else repr(v)
+        raise ModelError(f"{owner}: {label} must be a finite{' and non-negative' if non_negative else ''} number, "
+                         f"got {shown}")

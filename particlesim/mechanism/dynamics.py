@@ -139,16 +139,20 @@ def accelerations(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, "
 
 
 @compiled("kinetic_energy")
-def kinetic_energy(mech: Mechanism, qd: Float[Array, " 3F"], *, props: Prepared | None = None) -> Float[Array, ""]:
-    """``1/2 qd^T M qd``: equal to the bodies' rigid kinetic energy for admissible velocities."""
+def kinetic_energy(mech: Mechanism, q: Float[Array, " 3F"], qd: Float[Array, " 3F"], *,
+                   props: Prepared | None = None) -> Float[Array, ""]:
+    """``1/2 qd^T M qd``: equal to the bodies' rigid kinetic energy for admissible velocities (``M`` is constant:
+    ``q`` is taken for the state's usual order, ``(mech, q, qd)``, and not read)."""
+    del q
     ms = prepare(mech).ms if props is None else props.ms
     v = qd.reshape(-1, 3)
     return 0.5 * jnp.sum(v * (ms @ v))
 
 
 @compiled("total_energy")
-def total_energy(mech: Mechanism, q, qd, *, props: Prepared | None = None) -> Float[Array, ""]:
-    return kinetic_energy(mech, qd, props=props) + potential_energy(mech, q)
+def total_energy(mech: Mechanism, q, qd, *, t=0.0, props: Prepared | None = None) -> Float[Array, ""]:
+    """Kinetic plus potential energy (:func:`~.forces.potential_energy`; ``t`` places a tyre's moving road)."""
+    return kinetic_energy(mech, q, qd, props=props) + potential_energy(mech, q, t=t)
 
 
 @compiled("residuals")

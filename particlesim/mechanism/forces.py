@@ -51,15 +51,46 @@ def body_angular_velocity(mech: Mechanism, b: int, q, qd) -> Float[Array, "3"]:
     return unskew(fd @ f.T)
 
 
-def tyre_deflections(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, " T"]:
-    """Height of every tyre's measuring point above its ground plane minus its radius (negative: in contact)."""
-    return _tyre_gaps(mech, pts[np.asarray(mech.topo.tyre_points, dtype=int)])
+def tyre_deflections(mech: Mechanism, pts: Float[Array, "K 3"], t=0.0) -> Float[Array, " T"]:
+    """Height of every tyre's measuring point above its ground (at time ``t``) minus its radius (negative: in
+    contact)."""
+    return _tyre_gaps(mech, pts[np.asarray(mech.topo.tyre_points, dtype=int)], t)
 
 
-def _tyre_gaps(mech: Mechanism, at: Float[Array, "T 3"]) -> Float[Array, " T"]:
-    """Every tyre's height above its ground plane minus its radius, from its measuring points' positions ``at``."""
+def _tyre_gaps(mech: Mechanism, at: Float[Array, "T 3"], t=0.0, vel=None):
+    """Every tyre's height above its ground minus its radius, from its measuring points' positions ``at`` at time
+    ``t``; with their velocities ``vel``, also the gaps' rates (relative to a moving road)."""
     n = jnp.asarray(mech.topo.tyre_normals, dtype=at.dtype)
-    return jnp.sum(at * n, axis=1) - mech.tyre_ground - mech.tyre_radius
+    h, h_rate = _road_heights(mech, t, at, vel)
+    gap = jnp.sum(at * n, axis=1) - mech.tyre_ground - mech.tyre_radius - h
+    return gap if vel is None else (gap, jnp.sum(vel * n, axis=1) - h_rate)
+
+
+def _road_heights(mech: Mechanism, t, at, vel=None):
+    """Each tyre's road height at its measuring point ``at`` and time ``t`` (0 for a plane) and, with the points'
+    velocities ``vel``, its rate along the motion (``dh/dt + grad h . v``, by autodiff); zeros without roads."""
+    arity = mech.topo.tyre_road_args
+    if not arity:
+        return 0.0, 0.0
+    t = jnp.asarray(t, dtype=at.dtype)
+    hs, rates = [], []
+    for i, (n, fn) in enumerate(zip(arity, mech.tyre_roads)):
+        if n == 0:
+            hs.append(jnp.zeros((), at.dtype))
+            rates.append(jnp.zeros((), at.dtype))
+            continue
+        road = (lambda tt, pp, fn=fn: fn(tt)) if n == 1 else fn
+        if vel is None:
+            h, rate = road(t, at[i]), jnp.zeros((), at.dtype)
+        else:
+            h, rate = jax.jvp(road, (t, at[i]), (jnp.ones_like(t), vel[i]))
+        h = jnp.asarray(h, dtype=at.dtype)
+        if h.shape != ():
+            raise ModelError(f"tyre '{mech.topo.tyre_names[i]}': the road function must return one number (the "
+                             f"ground's height), got shape {h.shape}")
+        hs.append(h)
+        rates.append(jnp.asarray(rate, dtype=at.dtype))
+    return jnp.stack(hs), jnp.stack(rates)
 
 
 def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
@@ -89,9 +120,9 @@ def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
         k = np.asarray(topo.tyre_points, dtype=int)
         pk, vk = read(k)
         n = jnp.asarray(topo.tyre_normals, dtype=pk.dtype)
-        dist = _tyre_gaps(mech, pk)
+        dist, rate = _tyre_gaps(mech, pk, t, vk)
         touching = dist < 0.0 if contact is None else contact
-        f = jnp.where(touching, -(mech.tyre_stiffness * dist + mech.tyre_damping * jnp.sum(vk * n, axis=1)), 0.0)
+        f = jnp.where(touching, -(mech.tyre_stiffness * dist + mech.tyre_damping * rate), 0.0)
         idx.append(np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k)
         fs.append(f[:, None] * n)
     for ap in forces_applied:
@@ -231,8 +262,9 @@ def torque_forces(mech: Mechanism, t, q, qd):
 
 @compiled("generalized_forces")
 def generalized_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"], *,
-                       lumped=None) -> Float[Array, " 3F"]:
-    """Gravity + spring-dampers + tyres + applied forces and torques, as forces on the free coordinates."""
+                       lumped=None, contact=None) -> Float[Array, " 3F"]:
+    """Gravity + spring-dampers + tyres + applied forces and torques, as forces on the free coordinates.
+    ``contact`` (T,) fixes each tyre's law (in contact or not) instead of reading it from its deflection's sign."""
     from .constraints import point_free_weights, point_weights, points
 
     topo = mech.topo
@@ -243,7 +275,7 @@ def generalized_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Arr
     col = topo.free_column()
     pts = points(topo, w, mech.all_positions(q))
     vel = points(topo, w, jnp.where(jnp.asarray(col >= 0)[:, None], mech.all_positions(qd), 0.0))
-    f_pts = point_forces(mech, t, q, qd, pts, vel)
+    f_pts = point_forces(mech, t, q, qd, pts, vel, contact)
     if f_pts is not None:
         gen = gen + generalized_point_forces(point_free_weights(topo, w), f_pts)
     gen_t = torque_forces(mech, t, q, qd)
@@ -251,8 +283,9 @@ def generalized_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Arr
 
 
 @compiled("potential_energy")
-def potential_energy(mech: Mechanism, q: Float[Array, " 3F"]) -> Float[Array, ""]:
-    """Gravity, spring and (compressed) tyre energy; dampers and applied loads have none."""
+def potential_energy(mech: Mechanism, q: Float[Array, " 3F"], *, t=0.0) -> Float[Array, ""]:
+    """Gravity, spring and (compressed) tyre energy; dampers and applied loads have none. ``t`` places a tyre's
+    moving road (``ground=`` a function)."""
     topo = mech.topo
     r = mech.all_positions(q)
     u = -jnp.sum(lumped_masses(mech) * (r @ mech.gravity))
@@ -262,8 +295,7 @@ def potential_energy(mech: Mechanism, q: Float[Array, " 3F"]) -> Float[Array, ""
         ell = spring_lengths(mech, q)
         u = u + jnp.sum(0.5 * mech.spring_stiffness * (ell - mech.spring_free_length) ** 2)
     if topo.tyre_names:
-        k = np.asarray(topo.tyre_points, dtype=int)
-        d = jnp.sum(p[k] * jnp.asarray(topo.tyre_normals), axis=1) - mech.tyre_ground - mech.tyre_radius
+        d = tyre_deflections(mech, p, t)
         u = u + jnp.sum(jnp.where(d < 0.0, 0.5 * mech.tyre_stiffness * d**2, 0.0))
     if topo.rotational_names:
         th = rotational_angles(mech, q) - mech.rotational_free_angle

@@ -171,14 +171,19 @@ def physical_checks_eager(mech: Mechanism, entry: str = "simulate_mechanism") ->
                     raise ModelError(f"{entry}: {prefix} '{n}' {f.replace('_', ' ')} must be non-negative, got {v!r}")
 
 
-def _initial_contact(deflection, q0, qd0, xdd_free):
+def _initial_contact(deflection, t0, q0, qd0, xdd_free):
     """Each tyre's law at the start (1.0 in contact): compressed (deflection < 0), or at exactly zero deflection
-    heading into the ground: deflection rate < 0, or at rest with the free (no-contact) acceleration pressing in.
+    heading into the ground: deflection rate < 0 (a moving road's rate included), or at rest relative to the ground
+    with the free (no-contact) acceleration pressing in.
 
     A tyre that starts exactly touching (the usual assembly) must start in the law it is entering: its switching
     function starts at zero, where no sign change is ever seen, so starting it "off" let it sink unopposed."""
-    d, rate = jax.jvp(deflection, (q0,), (qd0,))
-    _, push = jax.jvp(deflection, (q0,), (xdd_free,))  # second derivative when at rest (rate = 0)
+    def along(s):  # the deflections along the start's free motion, s seconds on
+        return deflection(t0 + s, q0 + s * qd0 + 0.5 * s**2 * xdd_free)
+
+    zero = jnp.zeros((), q0.dtype)
+    d, rate = jax.jvp(along, (zero,), (jnp.ones_like(zero),))
+    push = jax.jacfwd(jax.jacfwd(along))(zero)  # the second derivative, which decides when the rate is 0
     entering = jnp.where(rate != 0.0, rate < 0.0, push < 0.0)
     return jnp.where(d != 0.0, d < 0.0, entering).astype(q0.dtype)
 
@@ -238,8 +243,8 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
     def full_projection(t, y, args):
         return projection(t, y, args, FULL)
 
-    def deflections(q, m, p):
-        return tyre_deflections(m, p.wk @ q.reshape(-1, 3) + p.p0)
+    def deflections(t, q, m, p):
+        return tyre_deflections(m, p.wk @ q.reshape(-1, 3) + p.p0, t)
 
     events = None
     args0 = [leaves[i] for i in arrays]
@@ -251,15 +256,16 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
 
         def surfaces(t, y, args, modes):
             m, p, _ = unpack(args)
-            d = deflections(y[0], m, p)
+            d = deflections(t, y[0], m, p)
             return jnp.where(modes > 0.5, -d, d)  # positive in the current law, crossing zero downwards
 
-        modes0 = _initial_contact(lambda q: deflections(q, mech, prep), q0, qd0,
+        modes0 = _initial_contact(lambda t, q: deflections(t, q, mech, prep), t0, q0, qd0,
                                   _solve(mech, prep, t0, q0, qd0, baumgarte,
                                          contact=jnp.zeros(len(mech.topo.tyre_names), bool))[0])
         ts_, (qs, qds), steps, rejected, result, ok, events = _ode.integrate_events(
             field_modes, (q0, qd0), args0, modes0, surfaces, len(mech.topo.tyre_names), max_events, t0=t0, t1=t1,
-            rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg, projection=projection if stabilise else None,
+            rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg,
+            projection=(lambda t, y, args: projection(t, y, args[0])) if stabilise else None,  # args: (args, modes)
             hint=_budget_hint(mech, cfg.solver, solve))
     else:
         ts_, (qs, qds), steps, rejected, result, ok = _ode.integrate(
@@ -272,7 +278,8 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
         qs, qds = jax.lax.map(lambda tab: full_projection(tab[0], tab[1:], args0), (ts_, qs, qds),
                               batch_size=inline_batch(max(1, mech.n_constraints)))
     if warn_switch:  # a differentiated rollout stepping across a tyre's switch: say so (derivatives are biased)
-        touching = jax.vmap(lambda q: deflections(q, mech, prep) < 0.0)(jnp.concatenate([q0[None], qs]))
+        touching = jax.vmap(lambda t, q: deflections(t, q, mech, prep) < 0.0)(
+            jnp.concatenate([jnp.asarray(t0, ts_.dtype)[None], ts_]), jnp.concatenate([q0[None], qs]))
         jax.debug.callback(_warn_switches, jnp.any(touching[1:] != touching[:-1], axis=0),
                            names=mech.topo.tyre_names)
     return Solution(ts=ts_, q=qs, qd=qds, steps=steps, rejected=rejected, status=result, ok=ok, events=events)

@@ -153,6 +153,7 @@ class Topology:
     rotational_names: tuple[str, ...] = ()  # rotational spring-dampers (planar mechanisms)
     rotational_bodies: tuple[tuple[int, int], ...] = ()  # (body a, body b); -1: the ground
     drive: DriveRows = DriveRows((), (), (), (), (), ())  # driving constraints (rows after the linear rows)
+    tyre_road_args: tuple[int, ...] = ()  # per tyre: 0 a plane, 1 a road ground(t), 2 ground(t, p); () no road
 
     def _key(self) -> tuple:
         return tuple(getattr(self, f.name) for f in dataclasses.fields(self))
@@ -273,6 +274,7 @@ class Mechanism(eqx.Module):
     # --- driving constraints (rows ``n(t).(p_a - p_b) - c(t)``, :class:`DriveRows`) ---
     drive_offset: Float[Array, " K"] = eqx.field(default_factory=lambda: jnp.zeros(0))
     drive_fns: tuple = ()  # f(t) -> scalar per driver (a function, or an equinox Module whose arrays are traced)
+    tyre_roads: tuple = ()  # per tyre: None or its road function (``Topology.tyre_road_args``); () when none has one
 
     # ---- sizes and names ----
     @property

@@ -47,7 +47,7 @@ def test_state_at_003_s_matches_the_published_reference(run):
 
 def test_energy_balance_and_residuals(run):
     mech, sol, q, _ = run
-    ke = jax.vmap(lambda v: kinetic_energy(mech, v))(sol.qd)
+    ke = jax.vmap(lambda x, v: kinetic_energy(mech, x, v))(sol.q, sol.qd)
     pe = jax.vmap(lambda x: potential_energy(mech, x))(sol.q)
     balance = np.asarray(ke + pe - pe[0]) - an.CONST["mom"] * (q[:, 0] - q[0, 0])
     assert np.abs(balance).max() <= ENERGY_TOL

@@ -47,10 +47,18 @@ def test_zero_length_spring(four_bar):
         mb.build()
 
 
-@pytest.mark.parametrize("k, c, l0, match", [(-1.0, 0.0, 0.1, "stiffness"), (1.0, np.nan, 0.1, "damping"),
-                                             (1.0, 0.0, -0.2, "free length")])
+@pytest.mark.parametrize("k, c, l0, match", [(-1.0, 0.0, 0.1, "stiffness .* got -1.0"),
+                                             (1.0, np.nan, 0.1, "damping .* got nan"),
+                                             (1.0, 0.0, -0.2, "free length .* got -0.2"),
+                                             (lambda t: 1.0, 0.0, 0.1, "stiffness .* got a function"),
+                                             (1.0, "0.5", 0.1, "damping .* got a str"),
+                                             (1.0, 0.0, np.ones(2), "free length .* got a ndarray")])
 def test_non_physical_spring_constants(k, c, l0, match, four_bar):
-    with pytest.raises(ModelError, match=f"spring 's': {match} must be finite and non-negative"):
+    """Values that are not finite, non-negative numbers (a negative, a NaN, a function, a string, an array) are
+    refused naming the spring and the argument."""
+    with pytest.raises(ModelError, match=f"spring 's': {match}"):
+        four_bar().spring_damper("s", "A", "C", k, c, l0)
+    with pytest.raises(ModelError, match=f"spring 's': {match.split()[0]}.* must be a finite and non-negative"):
         four_bar().spring_damper("s", "A", "C", k, c, l0)
 
 

@@ -111,9 +111,9 @@ def test_bad_rotational_springs():
     mb.ground("O", (0.0, 0.0))
     mb.particle("A", (1.0, 0.0))
     mb.rod("bar", "O", "A", mass=1.0)
-    with pytest.raises(ModelError, match="rotational spring 't': stiffness must be finite and non-negative"):
+    with pytest.raises(ModelError, match="rotational spring 't': stiffness must be a finite and non-negative number"):
         mb.rotational_spring_damper("t", None, "bar", -1.0, 0.0)
-    with pytest.raises(ModelError, match="rotational spring 't': free angle must be finite"):
+    with pytest.raises(ModelError, match="rotational spring 't': free angle must be a finite number"):
         mb.rotational_spring_damper("t", None, "bar", 1.0, 0.0, free_angle=np.nan)
     with pytest.raises(ModelError, match="rotational spring 't': connects body 'bar' to itself"):
         mb.rotational_spring_damper("t", "bar", "bar", 1.0, 0.0)

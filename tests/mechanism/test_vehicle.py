@@ -87,7 +87,7 @@ def test_energy_is_conserved_without_dampers(car):
                             tyre={f"tyre {c}": {"damping": 0.0} for c in vh.CORNERS})
     sol = _run(mech, q0, 1e-10)
     energy = jax.vmap(lambda q, qd: total_energy(mech, q, qd))(sol.q, sol.qd)
-    kinetic = jax.vmap(lambda qd: kinetic_energy(mech, qd))(sol.qd)
+    kinetic = jax.vmap(lambda q, qd: kinetic_energy(mech, q, qd))(sol.q, sol.qd)
     drift = float(jnp.abs(energy - energy[0]).max())
     # relative to the largest kinetic energy (energy exchanged), stricter than to |E(0)|, whose datum is arbitrary
     print(f"energy drift {drift:.2e} J; max kinetic {float(kinetic.max()):.1f} J; |E(0)| {float(energy[0]):.1f} J")
