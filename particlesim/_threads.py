@@ -161,14 +161,23 @@ class _Worker(threading.Thread):
     def run(self):
         while True:
             future, fn, args = self.tasks.get()
-            if future.set_running_or_notify_cancel():
-                try:
-                    future.set_result(fn(*args))
-                except BaseException as e:  # to the caller
-                    future.set_exception(e)
-            future = fn = args = None
-            with _lock:
-                _idle.append(self)
+            if not future.set_running_or_notify_cancel():
+                self._back()
+                continue
+            try:
+                out, error = fn(*args), None
+            except BaseException as e:  # to the caller
+                out, error = None, e
+            self._back()  # idle again before the caller hears: its next batch reuses this thread
+            if error is None:
+                future.set_result(out)
+            else:
+                future.set_exception(error)
+            future = fn = args = out = error = None
+
+    def _back(self):
+        with _lock:
+            _idle.append(self)
 
 
 _idle: list[_Worker] = []
@@ -190,20 +199,23 @@ def _submit(fn: Callable, *args) -> tuple[cf.Future, str]:
 
 def run_parts(fn: Callable, parts: Sequence[tuple], *, what: str = "a batch",
               describe: Callable[[int], str] | None = None) -> list:
-    """``[fn(*args) for args in parts]``, each part on its own worker thread with its outputs waited for there
-    (``jax.block_until_ready``), under the JAX settings this thread has set locally (``jax.default_device``,
-    ``jax.debug_nans``... as context managers: :func:`local_settings`). Exceptions reach the caller. The caller waits
-    with a bound: a part that stalls (:data:`STALL_SECONDS`) or outlasts :data:`TIMEOUT_SECONDS` raises
-    :class:`~particlesim.errors.BatchStalledError` naming ``what`` (the batch), the part (``describe(k)``, e.g. its
-    members) and its thread."""
+    """``[fn(*args) for args in parts]`` with every output ready: the first part dispatched on this thread, the
+    others each on a worker thread of its own (dispatched and waited for there) under the JAX settings this thread
+    has set locally (``jax.default_device``, ``jax.debug_nans``... as context managers: :func:`local_settings`).
+    Exceptions reach the caller. The caller waits with a bound: a part that stalls (:data:`STALL_SECONDS`) or
+    outlasts :data:`TIMEOUT_SECONDS` raises :class:`~particlesim.errors.BatchStalledError` naming ``what`` (the
+    batch), the part (``describe(k)``, e.g. its members) and its thread."""
     if len(parts) <= 1:
         return [jax.block_until_ready(fn(*args)) for args in parts]
     settings = local_settings()
-    submitted = [_submit(_part, settings, fn, args) for args in parts]
+    submitted = [_submit(_part, settings, fn, args) for args in parts[1:]]
     futures = [f for f, _ in submitted]
+    watch = _Watch(what, len(parts), describe, [threading.current_thread().name] + [n for _, n in submitted])
     try:
-        _wait(futures, [name for _, name in submitted], what, describe)
-        return [f.result() for f in futures]
+        own = fn(*parts[0])  # dispatched here (asynchronously, for a compiled program) while the others start
+        outs = [None] + [watch.result(k, f) for k, f in enumerate(futures, 1)]
+        outs[0] = watch.ready(0, own)
+        return outs
     except BaseException:
         for f in futures:  # parts not started yet are dropped; running ones finish on their own
             f.cancel()
@@ -217,40 +229,68 @@ def _part(settings: tuple, fn: Callable, args: tuple):
         return jax.block_until_ready(fn(*args))
 
 
-def _wait(futures: list, threads: list[str], what: str, describe) -> None:
-    """Until every future is done (or one failed: the caller raises it); :class:`BatchStalledError` when no part has
-    finished for :data:`STALL_SECONDS` while the process stayed idle, or past :data:`TIMEOUT_SECONDS`."""
-    start = time.monotonic()
-    pending = set(futures)
-    marks = collections.deque([(start, time.process_time())])  # (time, process CPU time) since the last finish
-    while pending:
+class _Watch:
+    """The caller's bounded wait for a split batch's parts: :class:`BatchStalledError` when no part has finished for
+    :data:`STALL_SECONDS` while the process stayed idle (running parts keep a core busy, deadlocked ones none), or
+    past :data:`TIMEOUT_SECONDS`."""
+
+    def __init__(self, what: str, n: int, describe, threads: list[str]):
+        self.what, self.n, self.describe, self.threads = what, n, describe, threads
+        self.start = time.monotonic()
+        self.marks = collections.deque([(self.start, time.process_time())])  # since the last part finished
+        self.done = 0
+
+    def result(self, k: int, future: cf.Future):
+        """Part ``k``'s result (its exception raised)."""
+        while True:
+            bounded = STALL_SECONDS is not None or TIMEOUT_SECONDS is not None
+            try:
+                out = future.result(timeout=_TICK if bounded else None)
+            except cf.TimeoutError:
+                self._check(k)
+                continue
+            self._finished()
+            return out
+
+    def ready(self, k: int, out):
+        """Part ``k``'s outputs once ready (arrays dispatched on this thread; other values are)."""
+        pending = [x for x in jax.tree.leaves(out) if hasattr(x, "is_ready")]
+        pause = 2e-5
+        while pending:
+            pending = [x for x in pending if not x.is_ready()]
+            if pending:
+                time.sleep(pause)
+                pause = min(2 * pause, 1e-3)
+                if time.monotonic() - self.marks[-1][0] >= _TICK:
+                    self._check(k)
+        self._finished()
+        return out
+
+    def _finished(self):
+        self.done += 1
+        self.marks = collections.deque([(time.monotonic(), time.process_time())])
+
+    def _check(self, k: int):
         stall, timeout = STALL_SECONDS, TIMEOUT_SECONDS
-        bounded = stall is not None or timeout is not None
-        done, pending = cf.wait(pending, timeout=_TICK if bounded else None, return_when=cf.FIRST_COMPLETED)
         now, cpu = time.monotonic(), time.process_time()
-        if done:
-            if any(f.exception() is not None for f in done):
-                return
-            marks = collections.deque([(now, cpu)])
-            continue
-        marks.append((now, cpu))
+        self.marks.append((now, cpu))
         if stall is not None:  # the oldest mark kept is the newest at least `stall` seconds old
-            while len(marks) > 1 and now - marks[1][0] >= stall:
-                marks.popleft()
-        t0, c0 = marks[0]
+            while len(self.marks) > 1 and now - self.marks[1][0] >= stall:
+                self.marks.popleft()
+        t0, c0 = self.marks[0]
         busy = (cpu - c0) / max(now - t0, 1e-9)
         stalled = stall is not None and now - t0 >= stall and busy < _IDLE_SHARE
-        late = timeout is not None and now - start >= timeout
-        if stalled or late:
-            k = next(i for i, f in enumerate(futures) if f in pending)
-            part = describe(k) if describe else f"part {k + 1} of {len(futures)}"
-            why = (f"no part finished in the last {now - t0:.0f} s, while the process used {100 * busy:.1f} % of "
-                   f"a core (particlesim._threads.STALL_SECONDS = {stall})" if stalled else
-                   f"not finished after {now - start:.0f} s (particlesim._threads.TIMEOUT_SECONDS = {timeout})")
-            raise BatchStalledError(
-                f"{what}: {part}, on thread {threads[k]!r}, {why}; {len(pending)} of {len(futures)} parts are "
-                "unfinished. Run the batch unsplit (threads=1; for tree batches particlesim.tree.aba.BATCH_THREADS "
-                "= 1): its parts wait on each other")
+        late = timeout is not None and now - self.start >= timeout
+        if not (stalled or late):
+            return
+        part = self.describe(k) if self.describe else f"part {k + 1} of {self.n}"
+        why = (f"no part finished in the last {now - t0:.0f} s, while the process used {100 * busy:.1f} % of a "
+               f"core (particlesim._threads.STALL_SECONDS = {stall})" if stalled else
+               f"not finished after {now - self.start:.0f} s (particlesim._threads.TIMEOUT_SECONDS = {timeout})")
+        raise BatchStalledError(
+            f"{self.what}: {part}, on thread {self.threads[k]!r}, {why}; {self.n - self.done} of {self.n} parts are "
+            "unfinished. Run the batch unsplit (threads=1; for tree batches particlesim.tree.aba.BATCH_THREADS = 1): "
+            "its parts wait on each other")
 
 
 #: Thread-local JAX settings never carried to the pool's threads: the thread guard marks the one thread allowed to

@@ -507,7 +507,8 @@ def test_batch_parts_by_cores_and_work(monkeypatch):
 
 @pytest.mark.parametrize("threads", [2, 3, 25])
 def test_batches_split_over_threads(small_tree, threads, monkeypatch):
-    """A batch passed from Python runs in parts on as many threads (each part on a worker thread of its own): 70 states over leading axes (2, 35), broadcast from ``qd`` of shape (35, n), in 2 parts of 35, 3 of
+    """A batch passed from Python runs in parts on as many threads (the first on this one, the others each on a
+    worker thread of its own): 70 states over leading axes (2, 35), broadcast from ``qd`` of shape (35, n), in 2 parts of 35, 3 of
     24 (the last starting at state 46, its first two states dropped), or for 25 threads 24 parts of 3 (25 parts of
     3 would start two at state 67). The same values as one program and as state by
     state, the batch's shape kept; the parts' program traced once, also for new states and parameter values; inside a
@@ -542,7 +543,9 @@ def test_batches_split_over_threads(small_tree, threads, monkeypatch):
     parts = -(-70 // count)
     assert parts == (24 if threads == 25 else threads)
     assert sorted(s for _, s in ran) == [min(i * count, 70 - count) for i in range(parts)]
-    assert len({t for t, _ in ran}) == parts and all(t.startswith("particlesim-part") for t, _ in ran)
+    main = threading.current_thread().name
+    assert [t for t, s in ran if s == 0] == [main]  # the first part dispatched on this thread
+    assert len({t for t, _ in ran}) == parts and all(t.startswith("particlesim-part") for t, s in ran if s != 0)
     assert max_rel(out, whole) <= SAME_RTOL
 
     def by_state(model):
