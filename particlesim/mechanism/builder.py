@@ -214,6 +214,47 @@ class MechanismBuilder:
         at = None if at is None else self._vec(at, f"{label}: at")
         self._joints.append(Fixed(body_a, body_b, at, label))
 
+    def revolute(self, body_a: Optional[str], body_b: str, *, axis, name: Optional[str] = None) -> None:
+        """A revolute joint between two bodies (``body_a=None``: the ground) about the line through the global
+        points ``axis = (p0, p1)`` (at assembly): each body's point at ``p0`` made one (a cut joint, three rows) and
+        ``body_b``'s point at ``p1`` kept on ``body_a``'s axis (two rows). Bodies sharing two particles on the axis
+        are the other way to the same joint. Both bodies must be able to carry points on the axis (any spatial
+        body; a rod only along its own line); declare them first. Spatial mechanisms (in a plane, share a particle
+        or ``cut_joint`` two points)."""
+        label = name or f"revolute {body_a or 'ground'}-{body_b}"
+        if self.planar:
+            raise ModelError(f"{label}: in a planar mechanism every joint turns about z: share a particle or "
+                             "cut_joint two points")
+        if isinstance(axis, str) or len(axis) != 2:
+            raise ModelError(f"{label}: axis must be two points (p0, p1) on the joint's axis")
+        p0, p1 = (self._vec(p, f"{label}: axis point") for p in axis)
+        if np.linalg.norm(p1 - p0) <= 1e-9 * max(1.0, np.linalg.norm(p0)):
+            raise ModelError(f"{label}: the axis points coincide")
+        if body_a == body_b:
+            raise ModelError(f"{label}: joins body '{body_b}' to itself")
+        known = {b[0]: b[2] for b in self._bodies}
+        for body in (body_a, body_b):
+            if body is not None and body not in known:
+                raise ModelError(f"{label}: unknown body '{body}' (declare the bodies before the joint)")
+        e = (p1 - p0) / np.linalg.norm(p1 - p0)
+
+        def off_axis(p):
+            d = p - p0
+            return np.linalg.norm(d - np.dot(d, e) * e)
+
+        if body_a is None:
+            a0, a1 = self.ground(f"{label}: axis 0", p0), self.ground(f"{label}: axis 1", p1)
+            side = np.cross(e, np.eye(3)[int(np.argmin(np.abs(e)))])
+            ref = self.ground(f"{label}: reference", p0 + side / np.linalg.norm(side))
+        else:
+            a0, a1 = (self.point(f"{label}: {body_a} axis {k}", body_a, p) for k, p in ((0, p0), (1, p1)))
+            ref = max(known[body_a], key=lambda n: off_axis(self._position(n, label)))
+            if off_axis(self._position(ref, label)) <= 1e-9:
+                raise ModelError(f"{label}: body '{body_a}' has no primary off the axis (a rod along it)")
+        b0, b1 = (self.point(f"{label}: {body_b} axis {k}", body_b, p) for k, p in ((0, p0), (1, p1)))
+        self.cut_joint(a0, b0, name=f"{label}: axis point")
+        self.on_line(b1, a0, (a0, a1), ref, name=f"{label}: axis direction")
+
     # ---- force elements ----
     def point(self, name: str, body: Optional[str], xyz) -> str:
         """A named point fixed to ``body`` at global ``xyz`` (assembly). A point of a planar body must lie in the
