@@ -102,3 +102,18 @@ def test_a_tyre_in_contact_must_be_compressed_at_the_equilibrium():
     eq = static_equilibrium(mech, q0, contact=[False])
     d_y = float(eq.q[mech.free_slice("D")][1])
     assert d_y == pytest.approx(top - length - m * 9.81 / k_spring, abs=1e-12)  # the spring carries the weight
+
+
+def test_new_parameters_states_and_tolerances_reuse_the_compiled_solve(monkeypatch):
+    """Counted by the residual's traces: a new stiffness, guess, time and tolerance run the compiled solve again."""
+    from particlesim.mechanism import statics
+
+    traces = []
+    real = statics._residual
+    monkeypatch.setattr(statics, "_residual", lambda y, args: traces.append(1) or real(y, args))
+    mech, q0 = qc.quarter_car()
+    static_equilibrium(mech, q0)
+    first = len(traces)
+    stiffer = mech.with_params(spring={"suspension": {"stiffness": 6e4}})
+    eq = static_equilibrium(stiffer, q0 + 1e-3, t=0.5, rtol=1e-9)
+    assert len(traces) == first and float(eq.force_residual) <= RESIDUAL_TOL
