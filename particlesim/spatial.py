@@ -28,6 +28,7 @@ __all__ = [
     "unit_axis_rotations",
     "quaternion_to_matrix",
     "frame_from_points",
+    "rotation_log",
 ]
 
 
@@ -177,3 +178,17 @@ def frame_from_points(p0, p1, p2) -> Float[Array, "3 3"]:
     e2 = b / jnp.linalg.norm(b)
     e3 = jnp.cross(e1, e2)
     return jnp.stack([e1, e2, e3], axis=-1)
+
+
+def rotation_log(r: Float[ArrayLike, "3 3"]) -> Float[Array, "3"]:
+    """The rotation vector ``theta * axis`` of a rotation matrix (the inverse of Rodrigues' formula), for rotations
+    by less than pi; smooth at the identity (a series there), so its derivatives are finite everywhere in that range.
+    """
+    r = jnp.asarray(r)
+    v = unskew(r)  # sin(theta) * axis
+    c = 0.5 * (jnp.trace(r, axis1=-2, axis2=-1) - 1.0)  # cos(theta)
+    s2 = jnp.sum(v * v, axis=-1)
+    small = (s2 < 1e-8) & (c > 0.0)
+    s = jnp.sqrt(jnp.where(small, 1.0, s2))
+    f = jnp.where(small, 1.0 + s2 / 6.0 + 3.0 * s2 * s2 / 40.0, jnp.arctan2(s, c) / s)  # theta / sin(theta)
+    return f[..., None] * v

@@ -27,7 +27,8 @@ from .. import _xla
 
 __all__ = ["TraceModel", "TraceFit", "trace_model", "fit_traces"]
 
-_GROUPS = {"body": "body_names", "spring": "spring_names", "tyre": "tyre_names", "rotational": "rotational_names"}
+_GROUPS = {"body": "body_names", "spring": "spring_names", "tyre": "tyre_names", "rotational": "rotational_names",
+           "bushing": "bushing_names", "torsion": "torsion_names", "bump": "bump_names"}
 
 
 class TraceModel(NamedTuple):

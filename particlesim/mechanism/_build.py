@@ -292,8 +292,11 @@ class _Build:
         free = tuple(i for i in range(len(self.names)) if not self.is_ground[i])
         ground = tuple(i for i in range(len(self.names)) if self.is_ground[i])
         springs, tyres = [], []
-        for name, a, b, k, c, l0 in mb._springs:
-            springs.append((name, (self.pidx(a, f"spring '{name}'"), self.pidx(b, f"spring '{name}'")), k, c, l0))
+        for name, a, b, k, c, l0, f_curve, c_curve in mb._springs:
+            ends = (self.pidx(a, f"spring '{name}'"), self.pidx(b, f"spring '{name}'"))
+            if l0 is None:
+                l0 = float(np.linalg.norm(self.point_world[ends[0]] - self.point_world[ends[1]]))
+            springs.append((name, ends, k, c, l0, f_curve, c_curve))
         for name, pt, normal, k, c, radius, g, apply_at, road in mb._tyres:
             nrm = np.linalg.norm(normal)
             if normal.shape != (3,) or not np.isfinite(nrm) or nrm == 0:
@@ -325,6 +328,7 @@ class _Build:
                 else:
                     idx.append(self.body_names.index(body))
             rot.append((name, tuple(idx), k, c, th0))
+        bush, tors, bumps = self.elements()
         in_body = set(self.member)
         topo = Topology(
             particle_names=tuple(self.names), free=free, ground=ground, body_names=tuple(self.body_names),
@@ -338,6 +342,10 @@ class _Build:
             linear=LinearRows(a=tuple(r[0] for r in self.lin), b=tuple(r[1] for r in self.lin),
                               axis=tuple(r[2] for r in self.lin), labels=tuple(r[3] for r in self.lin)),
             spring_names=tuple(s[0] for s in springs), spring_points=tuple(s[1] for s in springs),
+            spring_force_knots=tuple(() if s[5] is None else s[5][0] for s in springs)
+            if any(s[5] is not None for s in springs) else (),
+            spring_damping_knots=tuple(() if s[6] is None else s[6][0] for s in springs)
+            if any(s[6] is not None for s in springs) else (),
             tyre_names=tuple(t[0] for t in tyres), tyre_points=tuple(t[1] for t in tyres),
             tyre_normals=tuple(t[2] for t in tyres), tyre_apply=tuple(t[7] for t in tyres),
             tyre_road_args=tuple(0 if t[8] is None else _road_arity(t[0], t[8]) for t in tyres)
@@ -348,7 +356,11 @@ class _Build:
                             axis=tuple(tuple(float(v) for v in r[2]) for r in self.drv),
                             spin=tuple(tuple(float(v) for v in r[3]) for r in self.drv),
                             labels=tuple(r[5] for r in self.drv),
-                            names=tuple(d.name for d in self.mb._drives)))
+                            names=tuple(d.name for d in self.mb._drives)),
+            bushing_names=tuple(e[0] for e in bush), bushing_bodies=tuple(e[1] for e in bush),
+            bushing_rotational=tuple(e[7] for e in bush), torsion_names=tuple(e[0] for e in tors),
+            torsion_bodies=tuple(e[1] for e in tors), bump_names=tuple(e[0] for e in bumps),
+            bump_points=tuple(e[1] for e in bumps), bump_rebound=tuple(e[6] for e in bumps))
         if not topo.saddle_point and free:
             ev = np.linalg.eigvalsh(_np_mass_matrix(self, topo))
             if ev[0] <= 1e-12 * max(ev[-1], 1e-300):  # singular particle mass matrix: solve the full KKT system
@@ -373,7 +385,61 @@ class _Build:
             rotational_damping=f([r[3] for r in rot]).reshape(-1),
             rotational_free_angle=f([r[4] for r in rot]).reshape(-1), applied=tuple(applied), topo=topo,
             drive_offset=f([r[4] for r in self.drv]).reshape(-1), drive_fns=tuple(r[6] for r in self.drv),
-            tyre_roads=tuple(t[8] for t in tyres) if topo.tyre_road_args else ())
+            tyre_roads=tuple(t[8] for t in tyres) if topo.tyre_road_args else (),
+            spring_force_curve=tuple(f(np.zeros(0) if s[5] is None else s[5][1]) for s in springs)
+            if any(s[5] is not None for s in springs) else (),
+            spring_damping_curve=tuple(f(np.zeros(0) if s[6] is None else s[6][1]) for s in springs)
+            if any(s[6] is not None for s in springs) else (),
+            bushing_stiffness=f([e[5] for e in bush]).reshape(-1, 6), bushing_damping=f([e[6] for e in bush]).reshape(-1, 6),
+            bushing_local=f([e[2] for e in bush]).reshape(-1, 2, 3), bushing_axes=f([e[3] for e in bush]).reshape(-1, 3, 3),
+            bushing_rest=f([e[4] for e in bush]).reshape(-1, 3, 3),
+            torsion_stiffness=f([e[4] for e in tors]).reshape(-1), torsion_damping=f([e[5] for e in tors]).reshape(-1),
+            torsion_free_angle=f([e[6] for e in tors]).reshape(-1), torsion_axis=f([e[2] for e in tors]).reshape(-1, 3),
+            torsion_rest=f([e[3] for e in tors]).reshape(-1, 3, 3),
+            bump_stiffness=f([e[3] for e in bumps]).reshape(-1), bump_damping=f([e[4] for e in bumps]).reshape(-1),
+            bump_clearance=f([e[2] for e in bumps]).reshape(-1), bump_length=f([e[5] for e in bumps]).reshape(-1))
+
+    def _element_body(self, label: str, body, *, rotation: bool) -> int:
+        """A force element's body index (``None``: the ground, -1); with ``rotation`` it must carry one."""
+        if body is None:
+            return -1
+        if body not in self.body_names:
+            raise ModelError(f"{label}: unknown body '{body}'")
+        b = self.body_names.index(body)
+        if rotation and len(self.body_particles[b]) == 2:
+            raise ModelError(f"{label}: body '{body}' is a rod, whose turn about its own line is no motion: it "
+                             "carries no rotation (give it 3 or 4 primaries)")
+        return b
+
+    def _pose(self, b: int):
+        return (np.eye(3), np.zeros(3)) if b < 0 else self.body_pose[b]
+
+    def elements(self):
+        """Bushings, torsion springs and bump stops, resolved: body indices, body-frame data, built lengths."""
+        bush, tors, bumps = [], [], []
+        for name, a, b, frame, at, axes, k, c, rotating in self.mb._bushings:
+            label = f"bushing '{name}'"
+            ia, ib = (self._element_body(label, x, rotation=rotating) for x in (a, b))
+            i_f = self._element_body(label, frame, rotation=True)
+            (ra, oa), (rb, ob), (rf, _) = self._pose(ia), self._pose(ib), self._pose(i_f)
+            local = np.stack([ra.T @ (at - oa), rb.T @ (at - ob)])
+            bush.append((name, (ia, ib, i_f), local, rf.T @ axes, ra.T @ rb, k, c, bool(rotating)))
+        for name, a, b, axis, k, c, th0 in self.mb._torsions:
+            label = f"torsion spring '{name}'"
+            ia, ib = (self._element_body(label, x, rotation=True) for x in (a, b))
+            (ra, _), (rb, _) = self._pose(ia), self._pose(ib)
+            tors.append((name, (ia, ib), ra.T @ axis, ra.T @ rb, k, c, th0))
+        for name, a, b, clearance, k, c, rebound in self.mb._bumps:
+            label = f"bump stop '{name}'"
+            ia, ib = self.pidx(a, label), self.pidx(b, label)
+            length = float(np.linalg.norm(self.point_world[ia] - self.point_world[ib]))
+            if length <= 1e-12 * max(1.0, float(np.linalg.norm(self.point_world[ia]))):
+                raise ModelError(f"{label}: its points '{a}' and '{b}' coincide at assembly: its line is undefined")
+            if rebound is False and clearance >= length:
+                raise ModelError(f"{label}: its clearance {clearance!r} m is not shorter than the points' distance "
+                                 f"{length:.6g} m: it could never engage")
+            bumps.append((name, (ia, ib), clearance, k, c, length, rebound))
+        return bush, tors, bumps
 
 
 def _np_point_weights(bd: _Build, topo: Topology) -> np.ndarray:

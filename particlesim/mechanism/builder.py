@@ -29,6 +29,7 @@ from ..errors import ModelError
 from ..inertia import RigidInertia
 from ..particles import N_PRIMARY
 from ._build import ASSEMBLY_RTOL, RANK_RTOL, ConstraintRank, RedundantConstraintsWarning, _Build, _road_arity
+from .curves import check_curve
 from .joints import (CutJoint, Cylindrical, DriveAngle, DrivePosition, Fixed, Link, OnLine, PlanarPrismatic, Prismatic,
                      Universal, unit)
 from .model import AppliedForce, AppliedTorque, BodyLoad, Mechanism
@@ -60,6 +61,9 @@ class MechanismBuilder:
         self._rotational: list[tuple] = []
         self._applied: list[tuple] = []  # (AppliedForce | AppliedTorque | BodyLoad, name, target, fn)
         self._drives: list = []  # DriveAngle, DrivePosition
+        self._bushings: list[tuple] = []
+        self._torsions: list[tuple] = []
+        self._bumps: list[tuple] = []
 
     def _vec(self, xyz, what: str) -> np.ndarray:
         """A 3-vector from 3 numbers (or 2 in a planar mechanism, z = 0); a planar one must have z = 0."""
@@ -264,14 +268,35 @@ class MechanismBuilder:
         self._points[name] = (body, self._vec(xyz, f"point '{name}': position"))
         return name
 
-    def spring_damper(self, name: str, a: str, b: str, stiffness: float, damping: float,
-                      free_length: float) -> None:
-        """Point-to-point spring-damper between two particles or points."""
-        for label, v in (("stiffness", stiffness), ("damping", damping), ("free length", free_length)):
-            _number(f"spring '{name}'", label, v)
+    def spring_damper(self, name: str, a: str, b: str, stiffness: float = 0.0, damping: float = 0.0,
+                      free_length: Optional[float] = None, *, force_curve=None, damping_curve=None) -> None:
+        """Point-to-point spring-damper between two particles or points: the tension ``stiffness (l - free_length)
+        + damping l'`` along their line (``l`` their distance; ``free_length`` default: the assembly distance).
+
+        Nonlinear laws from tables (e.g. a vehicle file's spring and shock curves): ``force_curve = (x, f)`` the
+        tension ``f`` (N) at elongations ``x = l - free_length`` (m; negative in compression) in place of the
+        stiffness, ``damping_curve = (v, f)`` the tension at elongation rates ``v`` (m/s) in place of the damping;
+        either as two sequences or as rows ``[[x, f], ...]``, abscissae increasing, at least 3 points. Between the
+        points a natural cubic spline (smooth in the elongation and in the values), beyond them the end tangents
+        (:mod:`.curves`). The values are parameters: ``with_params(spring={name: {"force_curve": f}})``. The force
+        curve's integral is the spring's energy."""
+        owner = f"spring '{name}'"
+        for label, v in (("stiffness", stiffness), ("damping", damping)) + (
+                (("free length", free_length),) if free_length is not None else ()):
+            _number(owner, label, v)
+        tables = []
+        for label, curve, linear in (("force_curve", force_curve, stiffness), ("damping_curve", damping_curve,
+                                                                               damping)):
+            if curve is None:
+                tables.append(None)
+                continue
+            if linear:
+                raise ModelError(f"{owner}: give {label.split('_')[0] == 'force' and 'stiffness' or 'damping'} or "
+                                 f"{label}, not both")
+            tables.append(check_curve(owner, label.replace("_", " "), curve))
         if name in (s[0] for s in self._springs):
             raise ModelError(f"spring '{name}' is defined twice")
-        self._springs.append((name, a, b, stiffness, damping, free_length))
+        self._springs.append((name, a, b, stiffness, damping, free_length, *tables))
 
     def tyre(self, name: str, point: str, stiffness: float, damping: float, radius: float, *,
              normal=(0.0, 0.0, 1.0), ground: float | Callable = 0.0, apply_at: Optional[str] = None) -> None:
@@ -302,6 +327,97 @@ class MechanismBuilder:
             raise ModelError(f"tyre '{name}' is defined twice")
         self._tyres.append((name, point, np.asarray(normal, dtype=float), stiffness, damping, radius, ground,
                             apply_at, road))
+
+    def _element_name(self, kind: str, name: str, taken: list) -> None:
+        if not isinstance(name, str) or not name:
+            raise ModelError(f"{kind}: needs a name (a non-empty string), got {name!r}")
+        if name in (e[0] for e in taken):
+            raise ModelError(f"{kind} '{name}' is defined twice")
+
+    def _numbers(self, owner: str, label: str, v, n: int) -> np.ndarray:
+        """``n`` finite non-negative numbers (or one, repeated), refused by name otherwise."""
+        if _is_number(v):
+            v = [v] * n
+        arr = np.asarray(v, dtype=object)
+        if arr.shape != (n,):
+            raise ModelError(f"{owner}: {label} must be {n} numbers, got {v!r}")
+        for x in arr:
+            _number(owner, label, x)
+        return np.asarray(arr, dtype=float)
+
+    def bushing(self, name: str, body_a: Optional[str], body_b: str, *, at, stiffness, damping=0.0,
+                rotational_stiffness=None, rotational_damping=None, frame: Optional[str] = "body_a",
+                axes=None) -> None:
+        """A bushing: a 3-D spring-damper joining ``body_a`` (``None``: the ground) and ``body_b`` at the global
+        point ``at`` (their two points coincide at assembly: zero free length). The force on ``body_b`` is
+        ``-A (K delta + C delta')`` with ``delta`` the separation of its point from ``body_a``'s in the bushing's
+        axes ``A`` (``stiffness = (kx, ky, kz)`` in N/m, ``damping = (cx, cy, cz)`` in N s/m, or one number for
+        all three), the opposite on ``body_a``. The axes are ``axes`` (3 x 3, rows the x, y, z directions in the
+        world at assembly, orthonormal and right-handed; default the world axes) and turn with ``frame`` (a body
+        name, default ``body_a``; ``None``: fixed in the world). With ``rotational_stiffness = (krx, kry, krz)``
+        (N m/rad) and/or ``rotational_damping`` it also resists the rotation of ``body_b`` relative to
+        ``body_a`` since assembly (its rotation vector in the same axes; below half a turn), for bodies that carry a
+        rotation (spatial or planar sets, not rods). Conservative apart from its damping: its energy enters
+        :func:`~.forces.potential_energy`. Parameters by name: ``with_params(bushing={name: {"stiffness": (6,),
+        "damping": (6,)}})``, translations then rotations."""
+        label = f"bushing '{name}'"
+        self._element_name("bushing", name, self._bushings)
+        k = self._numbers(label, "stiffness", stiffness, 3)
+        c = self._numbers(label, "damping", damping, 3)
+        rotating = rotational_stiffness is not None or rotational_damping is not None
+        kr = self._numbers(label, "rotational stiffness", 0.0 if rotational_stiffness is None
+                           else rotational_stiffness, 3)
+        cr = self._numbers(label, "rotational damping", 0.0 if rotational_damping is None else rotational_damping, 3)
+        where = self._vec(at, f"{label}: at")
+        a = np.eye(3) if axes is None else np.asarray(axes, dtype=float)
+        if a.shape != (3, 3) or not np.all(np.isfinite(a)):
+            raise ModelError(f"{label}: axes must be a 3 x 3 matrix (rows: the bushing's x, y, z directions)")
+        if not np.allclose(a @ a.T, np.eye(3), atol=1e-9) or np.linalg.det(a) < 0:
+            raise ModelError(f"{label}: axes must be orthonormal and right-handed (rows: x, y, z directions), got "
+                             f"{a.tolist()}")
+        if body_a == body_b:
+            raise ModelError(f"{label}: joins body '{body_b}' to itself")
+        frame = body_a if frame == "body_a" else frame
+        self._bushings.append((name, body_a, body_b, frame, where, a.T, np.concatenate([k, kr]),
+                               np.concatenate([c, cr]), rotating))
+
+    def torsion_spring(self, name: str, body_a: Optional[str], body_b: str, axis, stiffness: float,
+                       damping: float = 0.0, free_angle: float = 0.0) -> None:
+        """A torsion spring-damper between two bodies about ``axis`` (a direction, global at assembly, fixed in
+        ``body_a``; ``None``: the ground): the torque on ``body_b`` is ``-(stiffness (theta - free_angle) + damping
+        theta')`` about the axis, its opposite on ``body_a``, with ``theta`` the rotation of ``body_b`` relative to
+        ``body_a`` since assembly about the axis (right-handed; the twist component of the relative rotation
+        vector, exact for bodies hinged on that axis; below half a turn). An anti-roll bar: two bar halves hinged
+        to the chassis on one axis, joined by this spring, each linked to its wheel's arm. Both bodies must carry
+        a rotation (spatial or planar sets, not rods). Stiffness in N m/rad, damping in N m s/rad; parameters by
+        name: ``with_params(torsion={name: {...}})``."""
+        label = f"torsion spring '{name}'"
+        self._element_name("torsion spring", name, self._torsions)
+        for lab, v in (("stiffness", stiffness), ("damping", damping), ("free angle", free_angle)):
+            _number(label, lab, v, non_negative=lab != "free angle")
+        e = self._vec(axis, f"{label}: axis")
+        if np.linalg.norm(e) == 0:
+            raise ModelError(f"{label}: axis must be a non-zero vector")
+        if body_a == body_b:
+            raise ModelError(f"{label}: joins body '{body_b}' to itself")
+        self._torsions.append((name, body_a, body_b, e / np.linalg.norm(e), float(stiffness), float(damping),
+                               float(free_angle)))
+
+    def bump_stop(self, name: str, a: str, b: str, clearance: float, stiffness: float, damping: float = 0.0, *,
+                  rebound: bool = False) -> None:
+        """A one-sided spring-damper between two particles or points (a jounce bumper between an arm and the
+        chassis): it engages once their distance has shortened by more than ``clearance`` (m) from its assembly
+        value (``rebound=True``: lengthened, a rebound stop), then pushes back along their line with
+        ``stiffness`` (N/m) times the penetration plus ``damping`` (N s/m) times its rate. Its switch is a located
+        event in ``simulate_mechanism(..., events=True)``; its energy enters :func:`~.forces.potential_energy`.
+        Parameters by name: ``with_params(bump={name: {"stiffness", "damping", "clearance"}})``."""
+        label = f"bump stop '{name}'"
+        self._element_name("bump stop", name, self._bumps)
+        for lab, v in (("clearance", clearance), ("stiffness", stiffness), ("damping", damping)):
+            _number(label, lab, v)
+        if not isinstance(rebound, (bool, np.bool_)):
+            raise ModelError(f"{label}: rebound must be True or False, got {rebound!r}")
+        self._bumps.append((name, a, b, float(clearance), float(stiffness), float(damping), bool(rebound)))
 
     def applied_force(self, name: str, point: str, fn: Callable) -> None:
         """A force ``fn(t, q, qd) -> (3,)`` (global) acting at a particle or point."""

@@ -52,6 +52,7 @@ def chain_plan(mech: Mechanism) -> ChainPlan:
     if len(topo.drive):
         raise ModelError("recursive chain solve: driving constraints need solve='dense'")
     if len(topo.linear) or topo.spring_names or topo.tyre_names or topo.rotational_names or mech.applied or \
+            topo.bump_names or topo.bushing_names or topo.torsion_names or \
             len(topo.point_names) != topo.n_particles:
         raise ModelError("recursive chain solve: only bodies, shared particles and gravity are supported")
     if topo.least_squares:

@@ -56,7 +56,8 @@ def _forces(mech: Mechanism, prep: Prepared, t, q, qd, contact=None):
     ``(3F,)`` (or None)."""
     topo = mech.topo
     terms = None
-    if topo.spring_names or topo.tyre_names or any(isinstance(ap, AppliedForce) for ap in mech.applied):
+    if topo.spring_names or topo.tyre_names or topo.bump_names or any(isinstance(ap, AppliedForce)
+                                                                       for ap in mech.applied):
         x, xd = q.reshape(-1, 3), qd.reshape(-1, 3)
 
         # Matrix products here, not _mm's outer sums: the same forward cost (quarter car: field 15.6-15.8 us either

@@ -17,11 +17,13 @@ from jaxtyping import Array, Float
 from ..errors import ModelError
 from ..spatial import frame_from_points, unskew
 from ._algebra import lumped_masses
+from .curves import curve_integral, curve_value
 from .model import AppliedForce, AppliedTorque, BodyLoad, Mechanism
 from .._jit import compiled
 
 __all__ = ["generalized_forces", "point_forces", "point_force_terms", "generalized_point_forces", "torque_forces",
-           "potential_energy", "spring_lengths", "body_angular_velocity", "rotational_angles"]
+           "potential_energy", "spring_lengths", "body_angular_velocity", "rotational_angles", "one_sided_gaps",
+           "one_sided_names", "bump_gaps"]
 
 
 def _pts(mech: Mechanism, q):
@@ -93,6 +95,44 @@ def _road_heights(mech: Mechanism, t, at, vel=None):
     return jnp.stack(hs), jnp.stack(rates)
 
 
+def _curve_tensions(mech: Mechanism, stretch, rate):
+    """The tabulated springs' and dampers' tensions (:mod:`.curves`), zero for linear ones; 0 when none."""
+    topo = mech.topo
+    out = 0.0
+    for knots, tables, arg in ((topo.spring_force_knots, mech.spring_force_curve, stretch),
+                               (topo.spring_damping_knots, mech.spring_damping_curve, rate)):
+        for i, x in enumerate(knots):
+            if x:
+                out = out + jnp.zeros_like(arg).at[i].set(curve_value(x, tables[i].astype(arg.dtype), arg[i]))
+    return out
+
+
+def one_sided_names(mech: Mechanism) -> tuple[str, ...]:
+    """The one-sided elements in switch order (tyres, then bump stops), labelled for messages."""
+    return (tuple(f"tyre '{n}'" for n in mech.topo.tyre_names)
+            + tuple(f"bump stop '{n}'" for n in mech.topo.bump_names))
+
+
+def bump_gaps(mech: Mechanism, pts: Float[Array, "K 3"]) -> Float[Array, " S"]:
+    """Every bump stop's gap (negative: engaged) from all points' positions: the distance of its points minus the
+    length at which it engages, sign turned for a rebound stop."""
+    ab = np.asarray(mech.topo.bump_points, dtype=int).reshape(-1, 2)
+    ell = jnp.linalg.norm(pts[ab[:, 0]] - pts[ab[:, 1]], axis=1)
+    sign = jnp.asarray(np.where(np.asarray(mech.topo.bump_rebound, bool), -1.0, 1.0), dtype=pts.dtype)
+    return sign * (ell - mech.bump_length) + mech.bump_clearance
+
+
+def one_sided_gaps(mech: Mechanism, pts: Float[Array, "K 3"], t=0.0) -> Float[Array, " T"]:
+    """The switching functions of every one-sided element (:func:`one_sided_names` order) from all points'
+    positions: tyre deflections, bump stop gaps; negative when engaged."""
+    parts = []
+    if mech.topo.tyre_names:
+        parts.append(tyre_deflections(mech, pts, t))
+    if mech.topo.bump_names:
+        parts.append(bump_gaps(mech, pts))
+    return jnp.concatenate(parts) if parts else jnp.zeros(0, pts.dtype)
+
+
 def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
     """The point forces of springs, tyres and applied forces as ``(idx, f)``: forces ``f`` (P, 3) on the points
     ``idx`` (P,), a static index array that may repeat points (the caller sums them); ``None`` if the mechanism has
@@ -102,8 +142,9 @@ def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
     An applied force whose function does not return shape (3,) raises ``ModelError`` naming it."""
     topo = mech.topo
     forces_applied = [ap for ap in mech.applied if isinstance(ap, AppliedForce)]
-    if not (topo.spring_names or topo.tyre_names or forces_applied):
+    if not (topo.spring_names or topo.tyre_names or topo.bump_names or forces_applied):
         return None
+    n_tyres = len(topo.tyre_names)
     idx, fs = [], []
     if topo.spring_names:
         ab = np.asarray(topo.spring_points, dtype=int)
@@ -112,8 +153,9 @@ def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
         d = pa - pb
         ell = jnp.linalg.norm(d, axis=1)
         u = d / ell[:, None]
-        f = (mech.spring_stiffness * (ell - mech.spring_free_length)
-             + mech.spring_damping * jnp.sum(u * (va - vb), axis=1))
+        rate = jnp.sum(u * (va - vb), axis=1)
+        f = mech.spring_stiffness * (ell - mech.spring_free_length) + mech.spring_damping * rate
+        f = f + _curve_tensions(mech, ell - mech.spring_free_length, rate)
         idx += [a, b]
         fs += [-f[:, None] * u, f[:, None] * u]
     if topo.tyre_names:
@@ -121,10 +163,25 @@ def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
         pk, vk = read(k)
         n = jnp.asarray(topo.tyre_normals, dtype=pk.dtype)
         dist, rate = _tyre_gaps(mech, pk, t, vk)
-        touching = dist < 0.0 if contact is None else contact
+        touching = dist < 0.0 if contact is None else contact[:n_tyres]
         f = jnp.where(touching, -(mech.tyre_stiffness * dist + mech.tyre_damping * rate), 0.0)
         idx.append(np.asarray(topo.tyre_apply, dtype=int) if topo.tyre_apply else k)
         fs.append(f[:, None] * n)
+    if topo.bump_names:
+        ab = np.asarray(topo.bump_points, dtype=int)
+        both = np.concatenate([ab[:, 0], ab[:, 1]])
+        p, v = read(both)
+        nb = len(topo.bump_names)
+        d, dv = p[:nb] - p[nb:], v[:nb] - v[nb:]
+        ell = jnp.linalg.norm(d, axis=1)
+        u = d / ell[:, None]
+        sign = jnp.asarray(np.where(np.asarray(topo.bump_rebound, bool), -1.0, 1.0), dtype=p.dtype)
+        gap = sign * (ell - mech.bump_length) + mech.bump_clearance
+        rate = sign * jnp.sum(u * dv, axis=1)
+        engaged = gap < 0.0 if contact is None else contact[n_tyres:]
+        f = jnp.where(engaged, sign * (mech.bump_stiffness * gap + mech.bump_damping * rate), 0.0)  # tension
+        idx += [ab[:, 0], ab[:, 1]]
+        fs += [-f[:, None] * u, f[:, None] * u]
     for ap in forces_applied:
         idx.append(np.asarray([ap.point], dtype=int))
         fs.append(applied_vector(ap, t, q, qd)[None])
@@ -245,12 +302,16 @@ def body_load_forces(mech: Mechanism, ap: BodyLoad, t, q, qd):
 
 
 def torque_forces(mech: Mechanism, t, q, qd):
-    """Generalised forces ``(3F,)`` of the applied torques (virtual power ``tau . omega``), the body loads and the
-    rotational spring-dampers; ``None`` if none."""
+    """Generalised forces ``(3F,)`` of the applied torques (virtual power ``tau . omega``), the body loads, the
+    rotational spring-dampers, bushings and torsion springs (:mod:`.elements`); ``None`` if none."""
+    from .elements import element_forces, has_elements
+
     torques = [ap for ap in mech.applied if isinstance(ap, (AppliedTorque, BodyLoad))]
-    if not torques and not mech.topo.rotational_names:
+    if not torques and not mech.topo.rotational_names and not has_elements(mech):
         return None
     gen = jnp.zeros_like(q) if not mech.topo.rotational_names else _rotational_forces(mech, q, qd)
+    if has_elements(mech):
+        gen = gen + element_forces(mech, q, qd)
     for ap in torques:
         if isinstance(ap, BodyLoad):
             gen = gen + body_load_forces(mech, ap, t, q, qd)
@@ -264,7 +325,8 @@ def torque_forces(mech: Mechanism, t, q, qd):
 def generalized_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, " 3F"], *,
                        lumped=None, contact=None) -> Float[Array, " 3F"]:
     """Gravity + spring-dampers + tyres + applied forces and torques, as forces on the free coordinates.
-    ``contact`` (T,) fixes each tyre's law (in contact or not) instead of reading it from its deflection's sign."""
+    ``contact`` fixes the law of each one-sided element (tyres, then bump stops: :func:`one_sided_names`; engaged
+    or not) instead of reading it from the sign of its gap."""
     from .constraints import point_free_weights, point_weights, points
 
     topo = mech.topo
@@ -284,20 +346,32 @@ def generalized_forces(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Arr
 
 @compiled("potential_energy")
 def potential_energy(mech: Mechanism, q: Float[Array, " 3F"], *, t=0.0) -> Float[Array, ""]:
-    """Gravity, spring and (compressed) tyre energy; dampers and applied loads have none. ``t`` places a tyre's
+    """Gravity, spring, (compressed) tyre, engaged bump stop, bushing and torsion spring energy; dampers and
+    applied loads have none. ``t`` places a tyre's
     moving road (``ground=`` a function)."""
     topo = mech.topo
     r = mech.all_positions(q)
     u = -jnp.sum(lumped_masses(mech) * (r @ mech.gravity))
-    if topo.spring_names or topo.tyre_names:
+    if topo.spring_names or topo.tyre_names or topo.bump_names:
         p = _pts(mech, q)
     if topo.spring_names:
         ell = spring_lengths(mech, q)
         u = u + jnp.sum(0.5 * mech.spring_stiffness * (ell - mech.spring_free_length) ** 2)
+        for i, x in enumerate(topo.spring_force_knots):
+            if x:
+                u = u + curve_integral(x, mech.spring_force_curve[i].astype(q.dtype),
+                                       ell[i] - mech.spring_free_length[i])
     if topo.tyre_names:
         d = tyre_deflections(mech, p, t)
         u = u + jnp.sum(jnp.where(d < 0.0, 0.5 * mech.tyre_stiffness * d**2, 0.0))
     if topo.rotational_names:
         th = rotational_angles(mech, q) - mech.rotational_free_angle
         u = u + jnp.sum(0.5 * mech.rotational_stiffness * th**2)
+    if topo.bump_names:
+        g = bump_gaps(mech, p)
+        u = u + jnp.sum(jnp.where(g < 0.0, 0.5 * mech.bump_stiffness * g**2, 0.0))
+    from .elements import element_energy, has_elements
+
+    if has_elements(mech):
+        u = u + element_energy(mech, q)
     return u

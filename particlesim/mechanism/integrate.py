@@ -43,8 +43,8 @@ from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_pro
 from ._algebra import (BETWEEN_STEPS, FULL, Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian,
                        prepare, residual, rows, schur, schur_solve, solve_schur, velocity_target)
 from .dynamics import _solve
-from .forces import tyre_deflections
-from .model import NON_NEGATIVE, Mechanism
+from .forces import one_sided_gaps, one_sided_names
+from .model import ELEMENT_FIELDS, ELEMENT_LABELS, NON_NEGATIVE, Mechanism
 from .._jit import compiled
 from .._threads import inline_batch
 
@@ -114,12 +114,15 @@ def parameter_groups(mech: Mechanism) -> list:
               ([f"point '{n}' position" for n in topo.point_names], mech.point_local),
               ([f"ground particle '{topo.particle_names[i]}' position" for i in topo.ground], mech.ground_xyz),
               (list(topo.dot.labels), mech.dot_kappa), ("gravity", mech.gravity)]
-    for prefix, names, fields in (("spring", topo.spring_names, ("stiffness", "damping", "free_length")),
-                                  ("tyre", topo.tyre_names, ("stiffness", "damping", "radius", "ground")),
-                                  ("rotational spring", topo.rotational_names, ("stiffness", "damping", "free_angle"))):
+    for kind, fields in ELEMENT_FIELDS.items():
+        names = getattr(topo, f"{kind}_names")
         for f in fields:
-            groups.append(([f"{prefix} '{n}' {f.replace('_', ' ')}" for n in names],
-                           getattr(mech, f"{prefix.split()[0]}_{f}")))
+            groups.append(([f"{ELEMENT_LABELS[kind]} '{n}' {f.replace('_', ' ')}" for n in names],
+                           getattr(mech, f"{kind}_{f}")))
+    for kind in ("force", "damping"):
+        for n, table in zip(topo.spring_names, getattr(mech, f"spring_{kind}_curve")):
+            if table.size:
+                groups.append((f"spring '{n}' {kind} curve", table))
     for ap in mech.applied:
         groups += [(f"applied '{ap.name}' {lab}", leaf) for lab, leaf in _ode.leaf_groups(ap.fn)]
     for name, fn in zip(topo.drive.names, mech.drive_fns):
@@ -149,8 +152,9 @@ def physical_checks(mech: Mechanism, entry: str = "simulate_mechanism") -> tuple
         names = getattr(topo, f"{prefix}_names")
         for f in fields:
             if names:
-                flags.append(~(getattr(mech, f"{prefix}_{f}") >= 0.0))
-                msgs += [f"{entry}: {prefix} '{n}' {f.replace('_', ' ')} must be non-negative" for n in names]
+                flags.append(~jnp.all((getattr(mech, f"{prefix}_{f}") >= 0.0).reshape(len(names), -1), axis=1))
+                msgs += [f"{entry}: {ELEMENT_LABELS[prefix]} '{n}' {f.replace('_', ' ')} must be non-negative"
+                         for n in names]
     if not flags:
         return None
     return jnp.concatenate(flags), msgs
@@ -167,8 +171,9 @@ def physical_checks_eager(mech: Mechanism, entry: str = "simulate_mechanism") ->
         for f in fields:
             values = np.asarray(getattr(mech, f"{prefix}_{f}"))
             for n, v in zip(getattr(topo, f"{prefix}_names"), values):
-                if not v >= 0.0:
-                    raise ModelError(f"{entry}: {prefix} '{n}' {f.replace('_', ' ')} must be non-negative, got {v!r}")
+                if not np.all(v >= 0.0):
+                    raise ModelError(f"{entry}: {ELEMENT_LABELS[prefix]} '{n}' {f.replace('_', ' ')} must be "
+                                     f"non-negative, got {np.asarray(v).tolist()!r}")
 
 
 def _initial_contact(deflection, t0, q0, qd0, xdd_free):
@@ -243,8 +248,10 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
     def full_projection(t, y, args):
         return projection(t, y, args, FULL)
 
-    def deflections(t, q, m, p):
-        return tyre_deflections(m, p.wk @ q.reshape(-1, 3) + p.p0, t)
+    def deflections(t, q, m, p):  # every one-sided element's switching function (tyres, bump stops)
+        return one_sided_gaps(m, p.wk @ q.reshape(-1, 3) + p.p0, t)
+
+    n_switch = len(one_sided_names(mech))
 
     events = None
     args0 = [leaves[i] for i in arrays]
@@ -261,9 +268,9 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
 
         modes0 = _initial_contact(lambda t, q: deflections(t, q, mech, prep), t0, q0, qd0,
                                   _solve(mech, prep, t0, q0, qd0, baumgarte,
-                                         contact=jnp.zeros(len(mech.topo.tyre_names), bool))[0])
+                                         contact=jnp.zeros(n_switch, bool))[0])
         ts_, (qs, qds), steps, rejected, result, ok, events = _ode.integrate_events(
-            field_modes, (q0, qd0), args0, modes0, surfaces, len(mech.topo.tyre_names), max_events, t0=t0, t1=t1,
+            field_modes, (q0, qd0), args0, modes0, surfaces, n_switch, max_events, t0=t0, t1=t1,
             rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg,
             projection=(lambda t, y, args: projection(t, y, args[0])) if stabilise else None,  # args: (args, modes)
             hint=_budget_hint(mech, cfg.solver, solve))
@@ -281,12 +288,12 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
         touching = jax.vmap(lambda t, q: deflections(t, q, mech, prep) < 0.0)(
             jnp.concatenate([jnp.asarray(t0, ts_.dtype)[None], ts_]), jnp.concatenate([q0[None], qs]))
         jax.debug.callback(_warn_switches, jnp.any(touching[1:] != touching[:-1], axis=0),
-                           names=mech.topo.tyre_names)
+                           names=one_sided_names(mech))
     return Solution(ts=ts_, q=qs, qd=qds, steps=steps, rejected=rejected, status=result, ok=ok, events=events)
 
 
 def _warn_switches(changed, names):
-    _ode.warn_switches(changed, [f"tyre '{n}'" for n in names])
+    _ode.warn_switches(changed, list(names))
 
 
 #: A driven mechanism's initial state must meet its driving rows to this fraction of the mechanism's size (and
@@ -339,11 +346,12 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
     rejected, step counts nearly flat in ``rtol``) takes fewer steps with a less sensitive controller such as
     ``(0.2, 0.4, 0.0)``.
 
-    ``events=True`` locates every switch of a tyre (contact closing or opening) instead of stepping across it:
-    the run is split into smooth segments (each tyre's law fixed), each ending where a deflection crosses zero
-    (root-found on the step's dense output), so that derivatives carry the jump at the switch; at most
-    ``max_events`` switches. The switches are reported in ``Solution.events`` (:class:`~particlesim._ode.Events`;
-    ``element`` indexes ``mech.topo.tyre_names``). Without events, a differentiated rollout in which a tyre
+    ``events=True`` locates every switch of a one-sided element (a tyre's contact or a bump stop's engagement
+    closing or opening) instead of stepping across it: the run is split into smooth segments (each element's law
+    fixed), each ending where a gap crosses zero (root-found on the step's dense output), so that derivatives carry
+    the jump at the switch; at most ``max_events`` switches. The switches are reported in ``Solution.events``
+    (:class:`~particlesim._ode.Events`; ``element`` indexes the tyres, then the bump stops:
+    :func:`~.forces.one_sided_names`). Without events, a differentiated rollout in which such an element
     switches warns (:class:`SwitchCrossedWarning`). "backsolve" is not available with events.
 
     ``max_steps`` bounds the steps of the run (of each smooth segment, with ``events``); exhausting it raises
@@ -370,7 +378,8 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
         raise ValueError(f"unknown solve {solve!r}; choose 'dense' or 'chain'")
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:
         raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
-    evented = bool(events) and bool(mech.topo.tyre_names)
+    switching = bool(mech.topo.tyre_names or mech.topo.bump_names)
+    evented = bool(events) and switching
     if evented and (solve == "chain" or isinstance(cfg.adjoint, diffrax.BacksolveAdjoint)):
         raise ValueError("events=True needs solve='dense' and a discrete adjoint ('checkpoint', 'direct', "
                          "'forward'): 'backsolve' would integrate backwards across the located switches")
@@ -389,6 +398,6 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
                                        lambda: physical_checks_eager(mech))
     if len(mech.topo.drive):
         _check_driven_start(mech, q0, qd0, t0)
-    warn = not evented and bool(mech.topo.tyre_names) and _ode.differentiated((mech, q0, qd0))
+    warn = not evented and switching and _ode.differentiated((mech, q0, qd0))
     return _simulate(mech, q0, qd0, t0_, t1_, rtol_, atol_, dt0_, ts, time_bad, cfg, bool(stabilise),
                      float(baumgarte), solve, int(max_events) if evented else 0, warn, not concrete)

@@ -45,13 +45,25 @@ from ..errors import ModelError
 from ..inertia import _is_concrete, check_inertia
 
 __all__ = ["Mechanism", "Topology", "DotRows", "LinearRows", "DriveRows", "AppliedForce", "AppliedTorque",
-           "BodyLoad", "BodyState", "NON_NEGATIVE"]
+           "BodyLoad", "BodyState", "NON_NEGATIVE", "ELEMENT_FIELDS", "ELEMENT_LABELS"]
 
 #: The force elements' parameters that must be non-negative, by kind (``Topology.<kind>_names``, ``Mechanism.<kind>_
 #: <field>``): checked by :meth:`Mechanism.with_params` on concrete values and by the simulation (the builder refuses
 #: negative ones itself).
 NON_NEGATIVE = {"spring": ("stiffness", "damping", "free_length"), "tyre": ("stiffness", "damping", "radius"),
-                "rotational": ("stiffness", "damping")}
+                "rotational": ("stiffness", "damping"), "bushing": ("stiffness", "damping"),
+                "torsion": ("stiffness", "damping"), "bump": ("stiffness", "damping", "clearance")}
+
+#: The parameters of each force element kind by name (``with_params(<kind>={name: {field: value}})``), and the
+#: label each kind goes by in messages.
+ELEMENT_FIELDS = {"spring": ("stiffness", "damping", "free_length"),
+                  "tyre": ("stiffness", "damping", "radius", "ground"),
+                  "rotational": ("stiffness", "damping", "free_angle"),
+                  "bushing": ("stiffness", "damping"),
+                  "torsion": ("stiffness", "damping", "free_angle"),
+                  "bump": ("stiffness", "damping", "clearance")}
+ELEMENT_LABELS = {"spring": "spring", "tyre": "tyre", "rotational": "rotational spring", "bushing": "bushing",
+                  "torsion": "torsion spring", "bump": "bump stop"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -154,6 +166,16 @@ class Topology:
     rotational_bodies: tuple[tuple[int, int], ...] = ()  # (body a, body b); -1: the ground
     drive: DriveRows = DriveRows((), (), (), (), (), ())  # driving constraints (rows after the linear rows)
     tyre_road_args: tuple[int, ...] = ()  # per tyre: 0 a plane, 1 a road ground(t), 2 ground(t, p); () no road
+    spring_force_knots: tuple = ()  # per spring: its force curve's elongations (() linear); () when none has one
+    spring_damping_knots: tuple = ()  # per spring: its damping curve's rates (() linear); () when none has one
+    bushing_names: tuple[str, ...] = ()  # bushings (:mod:`.elements`)
+    bushing_bodies: tuple[tuple[int, int, int], ...] = ()  # (body a, body b, frame body); -1: the ground
+    bushing_rotational: tuple[bool, ...] = ()  # whether each bushing also resists relative rotation
+    torsion_names: tuple[str, ...] = ()  # spatial torsion springs (:mod:`.elements`)
+    torsion_bodies: tuple[tuple[int, int], ...] = ()  # (body a, body b); -1: the ground
+    bump_names: tuple[str, ...] = ()  # bump stops: one-sided springs between two points
+    bump_points: tuple[tuple[int, int], ...] = ()
+    bump_rebound: tuple[bool, ...] = ()  # False: engages in compression (shorter), True: in extension (longer)
 
     def _key(self) -> tuple:
         return tuple(getattr(self, f.name) for f in dataclasses.fields(self))
@@ -275,6 +297,23 @@ class Mechanism(eqx.Module):
     drive_offset: Float[Array, " K"] = eqx.field(default_factory=lambda: jnp.zeros(0))
     drive_fns: tuple = ()  # f(t) -> scalar per driver (a function, or an equinox Module whose arrays are traced)
     tyre_roads: tuple = ()  # per tyre: None or its road function (``Topology.tyre_road_args``); () when none has one
+    spring_force_curve: tuple = ()  # per spring: its force curve's tensions [N] (empty: linear); () when none
+    spring_damping_curve: tuple = ()  # per spring: its damping curve's tensions [N] (empty: linear); () when none
+    # --- bushings, torsion springs (:mod:`.elements`) and bump stops ---
+    bushing_stiffness: Float[Array, "N 6"] = eqx.field(default_factory=lambda: jnp.zeros((0, 6)))  # x y z rx ry rz
+    bushing_damping: Float[Array, "N 6"] = eqx.field(default_factory=lambda: jnp.zeros((0, 6)))
+    bushing_local: Float[Array, "N 2 3"] = eqx.field(default_factory=lambda: jnp.zeros((0, 2, 3)))  # in a, b frames
+    bushing_axes: Float[Array, "N 3 3"] = eqx.field(default_factory=lambda: jnp.zeros((0, 3, 3)))  # frame body's
+    bushing_rest: Float[Array, "N 3 3"] = eqx.field(default_factory=lambda: jnp.zeros((0, 3, 3)))  # Ra^T Rb built
+    torsion_stiffness: Float[Array, " N"] = eqx.field(default_factory=lambda: jnp.zeros(0))
+    torsion_damping: Float[Array, " N"] = eqx.field(default_factory=lambda: jnp.zeros(0))
+    torsion_free_angle: Float[Array, " N"] = eqx.field(default_factory=lambda: jnp.zeros(0))
+    torsion_axis: Float[Array, "N 3"] = eqx.field(default_factory=lambda: jnp.zeros((0, 3)))  # in body a's frame
+    torsion_rest: Float[Array, "N 3 3"] = eqx.field(default_factory=lambda: jnp.zeros((0, 3, 3)))
+    bump_stiffness: Float[Array, " N"] = eqx.field(default_factory=lambda: jnp.zeros(0))
+    bump_damping: Float[Array, " N"] = eqx.field(default_factory=lambda: jnp.zeros(0))
+    bump_clearance: Float[Array, " N"] = eqx.field(default_factory=lambda: jnp.zeros(0))
+    bump_length: Float[Array, " N"] = eqx.field(default_factory=lambda: jnp.zeros(0))  # the points' built distance
 
     # ---- sizes and names ----
     @property
@@ -347,18 +386,23 @@ class Mechanism(eqx.Module):
 
     # ---- parameters by name ----
     def with_params(self, *, body: dict | None = None, spring: dict | None = None, tyre: dict | None = None,
-                    rotational: dict | None = None, gravity=None) -> "Mechanism":
+                    rotational: dict | None = None, bushing: dict | None = None, torsion: dict | None = None,
+                    bump: dict | None = None, gravity=None) -> "Mechanism":
         """A copy with parameters replaced by name (values may be traced: one compiled rollout serves all).
 
         ``body={"wheel": {"mass": 20.0, "com": ..., "inertia": ...}}``, ``spring={"suspension": {"stiffness": ...,
         "damping": ..., "free_length": ...}}``, ``tyre={"tyre": {"stiffness": ..., "damping": ..., "radius": ...,
         "ground": ...}}``, ``rotational={"torsion bar": {"stiffness": ..., "damping": ..., "free_angle": ...}}``,
-        ``gravity=(0, 0, -9.81)``. Unknown names or fields raise ``KeyError``. A value of the wrong shape raises
+        ``bushing={"front bush": {"stiffness": (6,), "damping": (6,)}}`` (x, y, z then rotations about x, y, z, in
+        the bushing's axes), ``torsion={"anti-roll bar": {"stiffness": ..., "damping": ..., "free_angle": ...}}``,
+        ``bump={"bump stop FL": {"stiffness": ..., "damping": ..., "clearance": ...}}``, ``gravity=(0, 0, -9.81)``. Unknown names or fields raise ``KeyError``. A value of the wrong shape raises
         :class:`~particlesim.errors.ModelError` naming it; concrete values are checked as the builder checks them
         (a body's mass, centre of mass and inertia by :func:`~particlesim.inertia.check_inertia`; stiffness, damping,
         lengths and radii finite and non-negative); traced ones are checked by the simulation when it runs
         (:func:`~.integrate.physical_checks`: non-finite or non-physical values raise, naming the body or element).
-        Each field is replaced alone: a new ``mass`` keeps the body's inertia tensor about its centre of mass, so for
+        A spring's tables: ``spring={"main": {"force_curve": f, "damping_curve": g}}``, the values at the table's
+        abscissae (same length). Each field is replaced alone: a new ``mass`` keeps the body's inertia tensor about
+        its centre of mass, so for
         a body that scales with its mass (a uniform rod made heavier) pass ``"inertia": scale *
         mech.body_inertia[mech.body_index(name)]`` with it."""
         new = {}
@@ -370,14 +414,35 @@ class Mechanism(eqx.Module):
             value = jnp.asarray(value, dtype=arr.dtype)
             kind, name = field.split("_", 1)
             if name in NON_NEGATIVE.get(kind, ()) and _is_concrete(value) \
-                    and not (np.isfinite(float(value)) and float(value) >= 0.0):
-                raise ModelError(f"with_params: {label} must be finite and non-negative, got {float(value)!r}")
+                    and not (np.all(np.isfinite(np.asarray(value))) and np.all(np.asarray(value) >= 0.0)):
+                raise ModelError(f"with_params: {label} must be finite and non-negative, got "
+                                 f"{np.asarray(value).tolist()!r}")
             new[field] = arr.at[i].set(value)
 
+        spring = dict(spring or {})
+        for name, entries in list(spring.items()):  # the tables: one array per spring
+            entries = dict(entries)
+            for kind in ("force", "damping"):
+                if f"{kind}_curve" not in entries:
+                    continue
+                value = entries.pop(f"{kind}_curve")
+                if name not in self.topo.spring_names:
+                    raise KeyError(f"no spring named {name!r}; springs: {list(self.topo.spring_names)}")
+                i = self.topo.spring_names.index(name)
+                field = f"spring_{kind}_curve"
+                tables = list(new.get(field, getattr(self, field)))
+                if not tables or tables[i].size == 0:
+                    raise ModelError(f"with_params: spring {name!r} has no {kind} curve (it is linear)")
+                if np.shape(value) != tables[i].shape:
+                    raise ModelError(f"with_params: spring {name!r} {kind} curve must have shape {tables[i].shape}, "
+                                     f"got {np.shape(value)}")
+                tables[i] = jnp.asarray(value, dtype=tables[i].dtype)
+                new[field] = tuple(tables)
+            spring[name] = entries
+        given = {"spring": spring, "tyre": tyre, "rotational": rotational, "bushing": bushing, "torsion": torsion,
+                 "bump": bump}
         groups = ((body, "body", self.topo.body_names, ("mass", "com", "inertia")),
-                  (spring, "spring", self.topo.spring_names, ("stiffness", "damping", "free_length")),
-                  (tyre, "tyre", self.topo.tyre_names, ("stiffness", "damping", "radius", "ground")),
-                  (rotational, "rotational", self.topo.rotational_names, ("stiffness", "damping", "free_angle")))
+                  *((given[k], k, getattr(self.topo, f"{k}_names"), f) for k, f in ELEMENT_FIELDS.items()))
         for values, prefix, names, fields in groups:
             for name, entries in (values or {}).items():
                 if name not in names:
@@ -398,8 +463,8 @@ class Mechanism(eqx.Module):
         """Readable name of a floating leaf from its pytree path, e.g. ``spring 'suspension' stiffness``."""
         keys = [getattr(k, "name", getattr(k, "idx", getattr(k, "key", None))) for k in path]
         head = keys[0]
-        for prefix, names in (("body", self.topo.body_names), ("spring", self.topo.spring_names),
-                              ("tyre", self.topo.tyre_names), ("rotational", self.topo.rotational_names)):
+        for prefix, names in (("body", self.topo.body_names),
+                              *((k, getattr(self.topo, f"{k}_names")) for k in ELEMENT_FIELDS)):
             if isinstance(head, str) and head.startswith(prefix + "_"):
                 field = head.removeprefix(prefix + "_")
                 if len(names) == 1:

@@ -63,17 +63,23 @@ def body_poses(mech: Mechanism, q: Float[Array, " 3F"]) -> tuple[Float[Array, "B
 
 def _poses_from_positions(mech: Mechanism, r: Float[Array, "P 3"]):
     """:func:`body_poses` from the positions of all particles."""
+    return _poses_from_primaries(mech, lambda idx: r[idx], r.dtype)
+
+
+def _poses_from_primaries(mech: Mechanism, read, dtype):
+    """:func:`body_poses` from ``read(idx)``, the positions ``(n, k, 3)`` of the primaries of the bodies ``idx``
+    (``(n, k)`` particle indices)."""
     topo = mech.topo
     n_b = len(topo.body_names)
-    rot = jnp.zeros((n_b, 3, 3), r.dtype)
-    org = jnp.zeros((n_b, 3), r.dtype)
+    rot = jnp.zeros((n_b, 3, 3), dtype)
+    org = jnp.zeros((n_b, 3), dtype)
     for kind, k in (("spatial", 4), ("planar", 3), ("rod", 2)):
         bs = np.array([b for b in range(n_b) if len(topo.body_particles[b]) == k], dtype=int)
         if not bs.size:
             continue
         idx = np.array([topo.body_particles[b] for b in bs], dtype=int)
         loc = mech.body_primaries[bs, :k]
-        wld = r[idx]
+        wld = read(idx)
         if kind == "rod":
             rr = _rod_rotation(_unit(loc[:, 1] - loc[:, 0]), _unit(wld[:, 1] - wld[:, 0]))
             oo = wld[:, 0] - jnp.einsum("bij,bj->bi", rr, loc[:, 0])
@@ -223,7 +229,8 @@ def body_reactions(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, 
     rigid-distance rows (a row shared by two bodies, the axis of a revolute joint, split evenly: the split moves
     equal and opposite forces along the axis between its two particles and leaves every joint's net force and
     moment unchanged). :func:`joint_reaction` sums them into a joint's force and moment. Torques (applied, body
-    loads, rotational spring-dampers) act on a body as couples over all its primaries, ground ones included."""
+    loads, rotational spring-dampers) and the wrenches of bushings and torsion springs act on a body over all its
+    primaries, ground ones included."""
     from ..particles import primary_mass_matrix
     from .constraints import point_weights, points
     from .dynamics import accelerations_and_multipliers
@@ -260,6 +267,9 @@ def body_reactions(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, 
             spring_torque[bb] = spring_torque.get(bb, 0.0) - tau[r]
             if ba >= 0:
                 spring_torque[ba] = spring_torque.get(ba, 0.0) + tau[r]
+    from .elements import element_primary_forces, has_elements
+
+    elem = element_primary_forces(mech, q, qd) if has_elements(mech) else None
     for bi, prim in enumerate(topo.body_particles):
         k = len(prim)
         idx = np.asarray(prim, dtype=int)
@@ -273,6 +283,8 @@ def body_reactions(mech: Mechanism, t, q: Float[Array, " 3F"], qd: Float[Array, 
         if bi in spring_torque:
             z = jnp.zeros((), q.dtype)
             r_b = r_b - primary_load_forces(mech, bi, q, jnp.zeros(3, q.dtype), jnp.stack([z, z, z + spring_torque[bi]]))
+        if elem is not None:  # bushings and torsion springs: their forces on the body's primaries
+            r_b = r_b - elem[bi, :k]
         for ap in mech.applied:  # loads and torques on the body, on all its primaries (ground ones too)
             if isinstance(ap, BodyLoad) and bi in ap.bodies:
                 from .forces import body_load_wrenches

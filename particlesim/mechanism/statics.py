@@ -22,7 +22,7 @@ from jaxtyping import Array, Float
 from .. import _ode
 from ..errors import ModelError
 from .constraints import constraint_jacobian, constraints
-from .forces import generalized_forces, tyre_deflections
+from .forces import generalized_forces, one_sided_gaps, one_sided_names
 from .model import Mechanism
 
 __all__ = ["Equilibrium", "static_equilibrium"]
@@ -62,8 +62,7 @@ def _solve(mech, q_guess, t, contact, rtol, atol, max_steps):
     q, lam = sol.value
     force, phi = _residual((q, lam), args)
     force = force * scale
-    gaps = tyre_deflections(mech, mech.point_positions(mech.all_positions(q)), t) if mech.topo.tyre_names \
-        else jnp.zeros(0)
+    gaps = one_sided_gaps(mech, mech.point_positions(mech.all_positions(q)), t)
     return (q, lam, jnp.max(jnp.abs(force), initial=0.0), jnp.max(jnp.abs(phi), initial=0.0),
             sol.stats["num_steps"], sol.result, gaps)
 
@@ -74,9 +73,10 @@ def static_equilibrium(mech: Mechanism, q_guess, *, t=0.0, contact=None, rtol: f
     moving road); module docstring. Differentiable in ``mech``'s parameters (implicit function theorem); compiled
     once per mechanism structure. ``rtol``/``atol`` bound Newton's last step in the positions and multipliers.
 
-    Tyres are one-sided; Newton's method needs each one's law fixed: ``contact`` (T,) says which tyres carry load
-    (default: all of them, a vehicle standing on its wheels). At the solution those must be compressed and the
-    others clear of the ground, else the call raises (at run time): pass the other contact set.
+    Tyres and bump stops are one-sided; Newton's method needs each one's law fixed: ``contact`` (one entry per
+    tyre, then per bump stop: :func:`~.forces.one_sided_names`) says which are engaged (default: every tyre, a
+    vehicle standing on its wheels, and the bump stops engaged at ``q_guess``). At the solution those must be
+    engaged and the others clear, else the call raises (at run time): pass the other contact set.
 
     Raises (at run time) when Newton's method has not converged in ``max_steps`` steps: no equilibrium near the
     guess (a body left without support, a load its springs cannot carry)."""
@@ -86,17 +86,21 @@ def static_equilibrium(mech: Mechanism, q_guess, *, t=0.0, contact=None, rtol: f
                          f"particle), got {q_guess.shape}")
     if _ode._concrete(q_guess) and not np.all(np.isfinite(np.asarray(q_guess))):
         raise ModelError("static_equilibrium: q_guess has non-finite entries")
-    n_tyres = len(mech.topo.tyre_names)
-    contact = jnp.ones(n_tyres, bool) if contact is None else jnp.asarray(contact, bool)
-    if contact.shape != (n_tyres,):
-        raise ModelError(f"static_equilibrium: contact must have one entry per tyre {list(mech.topo.tyre_names)}, "
-                         f"got shape {contact.shape}")
+    names = one_sided_names(mech)
+    if contact is None:  # tyres on the ground; bump stops as they are at the guess
+        gaps = one_sided_gaps(mech, mech.point_positions(mech.all_positions(q_guess)), t)
+        contact = jnp.concatenate([jnp.ones(len(mech.topo.tyre_names), bool),
+                                   gaps[len(mech.topo.tyre_names):] < 0.0])
+    contact = jnp.asarray(contact, bool)
+    if contact.shape != (len(names),):
+        raise ModelError(f"static_equilibrium: contact must have one entry per one-sided element (tyres, then bump "
+                         f"stops): {list(names)}, got shape {contact.shape}")
     t, rtol, atol = (jnp.asarray(v, jnp.float64) for v in (t, rtol, atol))
     q, lam, force, phi, steps, result, gaps = _solve(mech, q_guess, t, contact, rtol, atol, max_steps)
     q = eqx.error_if(q, result != optx.RESULTS.successful,
                      "static_equilibrium: Newton's method did not converge: no equilibrium near q_guess (a body "
                      "left without support, a load its springs cannot carry) or max_steps too small")
     q = eqx.error_if(q, jnp.any(jnp.where(contact, gaps > 0.0, gaps < 0.0)),
-                     "static_equilibrium: a tyre taken in contact is stretched at the equilibrium (or one taken "
-                     "clear is in the ground): pass contact= with the other set")
+                     "static_equilibrium: a tyre or bump stop taken as engaged is clear at the equilibrium (or one "
+                     "taken clear is engaged): pass contact= with the other set")
     return Equilibrium(q=q, lam=lam, force_residual=force, constraint_residual=phi, steps=steps)
