@@ -10,6 +10,7 @@ from .dynamics import (Prepared, accelerations, accelerations_and_multipliers, k
 from .forces import body_angular_velocity, generalized_forces, potential_energy, spring_lengths
 from .integrate import SwitchCrossedWarning, project, simulate_mechanism
 from .kinematics import KinematicSolution, kinematic_analysis
+from .linear import Linearization, Modes, linearize, modes
 from .model import AppliedForce, AppliedTorque, BodyLoad, BodyState, Mechanism
 from .statics import Equilibrium, static_equilibrium
 from .outputs import (body_angles, body_com_positions, body_poses, body_reactions, body_velocities, cut_joint_forces,
@@ -64,4 +65,8 @@ __all__ = [
     "cut_joint_forces",
     "body_reactions",
     "joint_reaction",
+    "linearize",
+    "Linearization",
+    "modes",
+    "Modes",
 ]
