@@ -543,8 +543,10 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
         which = hit & ((jnp.arange(n_surfaces) == jnp.argmin(s_e)) | (s_e < 0.0))
         if projection is not None:
             y_e = projection(t_e, y_e, args)
+        ran = t_e > t_s  # the segments after the run's end are empty (t_s = t_e = t1): their outputs are not states
+        y_e = jax.tree.map(lambda a, b: jnp.where(ran, a, b), y_e, y_s)
         seg = sol.ys[0]
-        valid = (save >= t_s) & (save <= t_e)
+        valid = (save >= t_s) & (save <= t_e) & ran
         acc = jax.tree.map(lambda a, v: jnp.where(valid.reshape((-1,) + (1,) * (v.ndim - 1)), v, a), acc, seg)
         new_modes = jnp.where(which, 1.0 - modes, modes)
         el = jnp.argmax(which)

@@ -109,3 +109,14 @@ def test_left_right_mirror_symmetry(car, damped):
     mirrored = pos[:, left] * np.array([1.0, -1.0, 1.0])
     assert np.abs(mirrored - pos[:, right]).max() <= 1e-9
     assert np.abs(pos[-1] - pos[0]).max() > 1e-2  # and it moved
+
+
+def test_located_events_keep_the_final_state(car, damped):
+    """With ``events=True`` and no switch in the run, the car moves as without events, its last saved state (at
+    t1) included: the run's empty trailing segments must not overwrite it."""
+    mech, q0 = car
+    sol = simulate_mechanism(mech, q0, jnp.zeros_like(q0), 0.0, T_END, rtol=1e-8, atol=1e-10, saveat_ts=TS,
+                             events=True)
+    assert bool(sol.ok) and not np.isfinite(np.asarray(sol.events.ts)).any()
+    assert float(jnp.abs(sol.q - damped.q).max()) <= 1e-6
+    assert float(jnp.abs(residuals(mech, sol.q[-1], sol.qd[-1])[0]).max()) <= 1e-10
