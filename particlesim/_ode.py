@@ -481,6 +481,8 @@ def _raise_failed(x, result, hint: str = ""):
 #: Event times are located by bisection on the step's dense output to this tolerance [s] (absolute, plus this
 #: fraction of the time).
 EVENT_TOL = 1e-13
+#: Switches located within this time of each other [s] (plus this fraction of the time) flip together.
+SIMULTANEOUS = 1e3 * EVENT_TOL
 
 
 class _EventBisection(optx.Bisection):
@@ -521,16 +523,25 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
     # crossing in one step a vector of functions has no common root. Bisection keeps the root inside the step
     # and halves the bracket to EVENT_TOL.
     root = _EventBisection(rtol=EVENT_TOL, atol=EVENT_TOL, flip=True)
-    event = diffrax.Event(lambda t, y, args, **kw: jnp.min(surfaces(t, y, args[0], args[1])), root_finder=root,
-                          direction=False)
+    # args = (args, modes, lift): each surface is measured from its value at the segment's start when that is
+    # below zero (``lift``), so that all start at or above zero: an element just switched starts at its root, and
+    # the projection after an event may leave it a rounding error across. The least representable positive number
+    # added keeps the start strictly positive: a start at zero would hide the next crossing of any other element
+    # within the first step (a crossing is a change from positive to not positive).
+    def condition(t, y, args, **kw):
+        value = jnp.min(surfaces(t, y, args[0], args[1]) + args[2])
+        return value + jnp.finfo(value.dtype).tiny
+
+    event = diffrax.Event(condition, root_finder=root, direction=False)
     term = diffrax.ODETerm(field)
 
     def segment(carry, _):
         t_s, y_s, modes, acc, steps, rejected, failed, n_ev, ev_t, ev_el, ev_on = carry
         # after a failed segment the rest are empty (start at t1), as after the last one of a run that finished
         t_s = jnp.where(failed == diffrax.RESULTS.successful, t_s, t1)
+        lift = jax.lax.stop_gradient(jnp.maximum(-surfaces(t_s, y_s, args, modes), 0.0))
         sol = diffrax.diffeqsolve(
-            term, solver, t0=t_s, t1=t1, dt0=dt0, y0=y_s, args=(args, modes),
+            term, solver, t0=t_s, t1=t1, dt0=dt0, y0=y_s, args=(args, modes, lift),
             saveat=diffrax.SaveAt(subs=[diffrax.SubSaveAt(ts=jnp.clip(save, t_s, t1)), diffrax.SubSaveAt(t1=True)]),
             stepsize_controller=controller, adjoint=cfg.adjoint, max_steps=cfg.max_steps, throw=diffrax_throws,
             event=event)
@@ -539,10 +550,15 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
         y_e = jax.tree.map(lambda v: v[0], sol.ys[1])
         # The element whose surface the event's root is on (the least), and any other already across (switches
         # simultaneous to the tolerance flip together).
-        s_e = surfaces(t_e, y_e, args, modes)
-        which = hit & ((jnp.arange(n_surfaces) == jnp.argmin(s_e)) | (s_e < 0.0))
-        if projection is not None:
-            y_e = projection(t_e, y_e, args)
+        # Simultaneous: across already, or reaching its surface within SIMULTANEOUS seconds at its present rate
+        # (two symmetric wheels landing together): left for the next segment, such an element would start at its
+        # root heading across, where no crossing can be seen.
+        s_e, rate = jax.jvp(lambda tt, yy: surfaces(tt, yy, args, modes), (t_e, y_e),
+                            (jnp.ones_like(t_e), field(t_e, y_e, (args, modes, lift))))
+        soon = SIMULTANEOUS * (1.0 + jnp.abs(t_e))
+        which = hit & ((jnp.arange(n_surfaces) == jnp.argmin(s_e)) | (s_e < 0.0) | (s_e + soon * rate < 0.0))
+        if projection is not None:  # called as the solver calls it, with (args, modes, ...)
+            y_e = projection(t_e, y_e, (args, modes, lift))
         ran = t_e > t_s  # the segments after the run's end are empty (t_s = t_e = t1): their outputs are not states
         y_e = jax.tree.map(lambda a, b: jnp.where(ran, a, b), y_e, y_s)
         seg = sol.ys[0]

@@ -179,7 +179,7 @@ def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, t
         idx = np.asarray(switch, dtype=int)
 
         def field_modes(t, y, args):
-            p, modes = args
+            p, modes = args[:2]  # (params, modes, the event's lift)
             q, qd = y
             tau = controlled(t, q, qd, p)
             sign = jnp.sign(qd).at[idx].set(2.0 * modes - 1.0)
