@@ -47,7 +47,22 @@ B6. Spring (``"spring FL"``...): the file's coefficient, or its curve linearised
     planar lower arm the arm ends of both (HMMWV: 11-12 mm off the hardpoint plane) are slid along their own axes
     into the plane (same line of action at assembly), the spring's free length lengthened by the same amount.
 B7. Tyres (``"tyre FL"``...): not in the file. Vertical, on the wheel centre, radius 0.47 m (HMMWV 37 inch tyre),
-    400 kN/m, 1 kN s/m; the ground plane lies so that each tyre carries a quarter of the total weight at assembly.
+    400 kN/m, 1 kN s/m; the ground plane lies so that each tyre carries a quarter of the total weight at assembly
+    (its height the tyre's ``ground`` parameter; a road, ``roads=``, is added to it).
+
+Options of :func:`full_vehicle` (off by default; not in the files):
+
+B8. Anti-roll bars: a torsion spring between the left and right lower arms about the lower arms' pivot axis
+    (parallel on both sides, so the twist is the difference of the arms' swings, whatever the chassis does); the
+    bar's own mass, links and compliance are not modelled.
+B9. The tabulated spring: the file's curve through a natural cubic spline, linear beyond its ends (tension at the
+    spring's elongation from its free length, Chrono's sign).
+B10. Bump and rebound stops: one-sided springs on each spring's line engaging at the file's minimum and maximum
+    lengths (HMMWV: 0.15 and 0.30 m; Chrono's own stop curves are not in the file), with the given stiffness and
+    damping.
+B11. Steering: a rack of 5 kg (a rod) between the front tie rods' inner ends, both ends kept on the chassis line
+    through them, its left end driven along the world's y axis relative to the chassis (the rack's direction while
+    the chassis neither yaws nor rolls: a yawed chassis sees the rack travel's cosine).
 """
 from __future__ import annotations
 
@@ -71,6 +86,7 @@ TYRE = {"radius": 0.47, "stiffness": 4.0e5, "damping": 1.0e3}  # B7
 WHEELBASE = 3.3
 CORNERS = {"FL": (0.0, 1.0), "FR": (0.0, -1.0), "RL": (-WHEELBASE, 1.0), "RR": (-WHEELBASE, -1.0)}
 _CHASSIS_HEIGHT, _BOX, _G = 0.4, (4.6, 2.2, 1.2), 9.81
+_RACK_MASS = 5.0  # kg, B11
 _UCA, _LCA = "Upper Control Arm", "Lower Control Arm"
 #: Hardpoint names, with their file section and key.
 _POINTS = {"uca_f": (_UCA, "Location Chassis Front"), "uca_b": (_UCA, "Location Chassis Back"),
@@ -333,7 +349,8 @@ def _slide_into_plane(a, c, origin, w):
     return c + e * np.dot(origin - c, w) / np.dot(e, w)
 
 
-def _corner(mb, c, corner: CornerData, dx, sy, spring, tyre, ground_lift):
+def _corner(mb, c, corner: CornerData, dx, sy, spring, tyre, ground_lift, road=None, curve=False, stops=None,
+            rack=None):
     """Corner ``c`` of ``corner`` shifted by ``dx`` along x, mirrored when ``sy < 0`` (B1, B3-B7)."""
     mirror = np.array([1.0, sy, 1.0])
     hp = {k: np.array(v) * mirror + [dx, 0, 0] for k, v in corner.hardpoints.items()}
@@ -363,7 +380,8 @@ def _corner(mb, c, corner: CornerData, dx, sy, spring, tyre, ground_lift):
         mb.on_line(pt[f"{arm}_b"], front, (front, back), "chassis 0", name=f"{label} back pivot {c}")
     mb.body(f"upright {c}", _combined(f"upright {c}", [(*bd[k][:2], world[k]) for k in ("upright", "spindle")]),
             [pt["lca_u"], pt["uca_u"], pt["wheel"], pt["tierod_u"]], on_negative="ignore")
-    mb.link(pt["tierod_u"], mb.point(f"chassis tierod {c}", "chassis", hp["tierod_c"]), name=f"tie rod {c}")
+    inner = rack if rack is not None else mb.point(f"chassis tierod {c}", "chassis", hp["tierod_c"])
+    mb.link(pt["tierod_u"], inner, name=f"tie rod {c}")
     for el, stiff, damp, fl in (("spring", spring["stiffness"], 0.0, spring["free_length"]),
                                 ("shock", 0.0, spring["damping"], None)):
         a = hp[f"{el}_a"]
@@ -372,12 +390,30 @@ def _corner(mb, c, corner: CornerData, dx, sy, spring, tyre, ground_lift):
         top = mb.point(f"chassis {el} {c}", "chassis", hp[f"{el}_c"])
         length = np.linalg.norm(a - hp[f"{el}_c"])
         fl = length if fl is None else fl + length - np.linalg.norm(hp[f"{el}_a"] - hp[f"{el}_c"])
-        mb.spring_damper(f"{el} {c}", mb.point(f"lower arm {el} {c}", f"lower arm {c}", a), top, stiff, damp, fl)
+        bottom = mb.point(f"lower arm {el} {c}", f"lower arm {c}", a)
+        if el == "spring" and curve:  # B9: the file's curve, tabulated
+            mb.spring_damper(f"{el} {c}", bottom, top, free_length=fl, force_curve=corner.spring.curve)
+        else:
+            mb.spring_damper(f"{el} {c}", bottom, top, stiff, damp, fl)
+        if el == "spring" and stops is not None:  # B10: bump and rebound stops at the file's length limits
+            shift = length - np.linalg.norm(hp[f"{el}_a"] - hp[f"{el}_c"])
+            for kind, limit, rebound in (("bump", corner.spring.min_length, False),
+                                         ("rebound", corner.spring.max_length, True)):
+                if limit is None:
+                    continue
+                gap = (length - (limit + shift)) * (-1.0 if rebound else 1.0)
+                if gap < 0:
+                    raise ModelError(f"{corner.source}: the spring of corner {c} is {length:.4g} m long at the "
+                                     f"hardpoints, beyond its {kind} limit {limit + shift:.4g} m")
+                mb.bump_stop(f"{kind} stop {c}", bottom, top, gap, stops["stiffness"], stops.get("damping", 0.0),
+                             rebound=rebound)
     mb.tyre(f"tyre {c}", pt["wheel"], tyre["stiffness"], tyre["damping"], tyre["radius"],
-            ground=float(bd["spindle"][1][2]) - tyre["radius"] + ground_lift)
+            ground=0.0 if road is None else road)
+    return float(bd["spindle"][1][2]) - tyre["radius"] + ground_lift  # the tyre's ground height (B7)
 
 
-def full_vehicle(*, front=None, rear=None, chassis_mass=2000.0, chassis_inertia=None, spring=None, tyre=None):
+def full_vehicle(*, front=None, rear=None, chassis_mass=2000.0, chassis_inertia=None, spring=None, tyre=None,
+                 roads=None, spring_curve=False, stops=None, anti_roll_bar=None, steering=None):
     """The full vehicle (10 degrees of freedom); returns ``(mech, q0)``, at rest in the assembly configuration.
     ``front``, ``rear``: a Chrono ``DoubleWishbone`` JSON path or a :class:`CornerData` (default: the HMMWV front
     file, read with ``inertia="balance"``, which warns; ``rear=None``: the front one, B1).
@@ -385,7 +421,19 @@ def full_vehicle(*, front=None, rear=None, chassis_mass=2000.0, chassis_inertia=
     overrides of every corner's ``{"stiffness", "free_length", "damping"}`` (B6; ``damping`` is the shock's), ``tyre``
     of :data:`TYRE`. Force elements ``"spring XX"``, ``"shock XX"``, ``"tyre XX"`` for XX in :data:`CORNERS`, bodies
     ``"chassis"``, ``"lower arm XX"``, ``"upper arm XX"``, ``"upright XX"`` (parameters by name:
-    ``mech.with_params``)."""
+    ``mech.with_params``).
+
+    Options (each off by default):
+
+    * ``roads``: ``{corner: road}``, each tyre's road as a function of time added to its ground plane (a post of a
+      four-post rig; :mod:`particlesim.scenes.roads`);
+    * ``spring_curve=True``: the files' spring curves, tabulated (B9), instead of their linearisation;
+    * ``stops={"stiffness": k, "damping": c}``: bump and rebound stops on each spring's line at the file's minimum
+      and maximum lengths (B10; ``"bump stop XX"``, ``"rebound stop XX"``);
+    * ``anti_roll_bar={"front": k, "rear": k}``: anti-roll bars of ``k`` N m/rad between the left and right lower
+      arms (B8; ``"anti-roll bar front"``, ``"anti-roll bar rear"``);
+    * ``steering=f``: a steering rack (B11): the front tie rods' inner ends on a rack body that slides along the
+      chassis, moved ``f(t)`` metres (to the left: positive) by a driver ``"steering"``; ``f(0)`` must be 0."""
     from ..mechanism import MechanismBuilder
 
     front = front if isinstance(front, CornerData) else load_double_wishbone(front or hmmwv_front_path())
@@ -405,7 +453,41 @@ def full_vehicle(*, front=None, rear=None, chassis_mass=2000.0, chassis_inertia=
     mb.body("chassis", chassis, [mb.particle(f"chassis {k}", p) for k, p in enumerate(prim)])
     masses = [sum(b.mass for b in cd.bodies.values()) for cd in (front, rear)]
     deflection = (chassis_mass + 2 * (masses[0] + masses[1])) * _G / 4 / tyre["stiffness"]
+    roads = dict(roads or {})
+    unknown = set(roads) - set(CORNERS)
+    if unknown:
+        raise ModelError(f"full_vehicle: roads for unknown corners {sorted(unknown)}; corners: {list(CORNERS)}")
+    racks = _rack(mb, front, steering) if steering is not None else {}
+    heights = {}
     for c, (dx, sy) in CORNERS.items():
         corner = front if dx == 0.0 else rear
-        _corner(mb, c, corner, dx, sy, {**_spring_values(corner), **(spring or {})}, tyre, deflection)
-    return mb.build(dof=10)
+        if spring_curve and corner.spring.curve is None:
+            raise ModelError(f"full_vehicle: spring_curve=True, but {corner.source} gives no spring curve")
+        if stops is not None and not (set(stops) <= {"stiffness", "damping"} and "stiffness" in stops):
+            raise ModelError(f"full_vehicle: stops must be {{'stiffness': k, 'damping': c}}, got {stops!r}")
+        heights[c] = _corner(mb, c, corner, dx, sy, {**_spring_values(corner), **(spring or {})}, tyre, deflection,
+                             roads.get(c), spring_curve, stops, racks.get(c))
+    for axle, pair in (anti_roll_bar or {}).items():
+        if axle not in ("front", "rear"):
+            raise ModelError(f"full_vehicle: anti_roll_bar axles are 'front' and 'rear', got {axle!r}")
+        left, right = ("FL", "FR") if axle == "front" else ("RL", "RR")
+        corner = front if axle == "front" else rear
+        axis = np.asarray(corner.hardpoints["lca_f"]) - np.asarray(corner.hardpoints["lca_b"])
+        mb.torsion_spring(f"anti-roll bar {axle}", f"lower arm {left}", f"lower arm {right}", axis, pair)
+    mech, q0 = mb.build(dof=10)
+    return mech.with_params(tyre={f"tyre {c}": {"ground": h} for c, h in heights.items()}), q0
+
+
+def _rack(mb, corner: CornerData, steering) -> dict:
+    """B11: the rack, a rod between the front tie rods' inner ends held on the chassis line through them and driven
+    along it; returns the rack end of each front corner."""
+    hp = np.asarray(corner.hardpoints["tierod_c"], dtype=float)
+    ends = {"FL": hp, "FR": hp * np.array([1.0, -1.0, 1.0])}
+    names = {c: mb.particle(f"rack {c}", p) for c, p in ends.items()}
+    mb.rod("rack", names["FL"], names["FR"], _RACK_MASS)
+    a = mb.point("chassis rack FL", "chassis", ends["FL"])
+    b = mb.point("chassis rack FR", "chassis", ends["FR"])
+    for c in ends:
+        mb.on_line(names[c], a, (a, b), "chassis 0", name=f"rack {c} on its guide")
+    mb.drive_position("steering", names["FL"], steering, axis=(0.0, 1.0, 0.0), relative_to=a)
+    return names
