@@ -141,3 +141,24 @@ def test_wheels_leaving_and_landing_together_are_located():
     assert float(jnp.abs(located.q - stepped.q).max()) <= 1e-5
     wheels = [mech.free_slice(f"wheel {c}").start + 2 for c in ("FL", "FR")]
     assert float(jnp.abs(located.q[:, wheels[0]] - located.q[:, wheels[1]]).max()) <= 1e-9
+
+
+def test_options_build_with_ten_freedoms_and_bad_ones_are_refused():
+    import jax.numpy as jnp_
+
+    from particlesim.errors import ModelError
+
+    mech, q0 = vh.full_vehicle(spring_curve=True, stops={"stiffness": 1e6, "damping": 1e3},
+                               anti_roll_bar={"front": 1e4}, steering=lambda t: 0.01 * t)
+    assert mech.topo.bump_names == tuple(f"{k} stop {c}" for c in vh.CORNERS for k in ("bump", "rebound"))
+    assert mech.topo.torsion_names == ("anti-roll bar front",)
+    assert all(len(x) == 21 for x in mech.topo.spring_force_knots[::2])  # the springs (shocks stay linear)
+    jac = np.asarray(constraint_jacobian(mech, jnp_.asarray(q0), t=0.0))
+    # the rack adds one sliding freedom, which its driver takes: ten free ones remain
+    assert mech.n_coords - np.linalg.matrix_rank(jac.reshape(mech.n_constraints, -1)) == 10
+    for kw, msg in [(dict(roads={"XX": lambda t: 0.0 * t}), "roads for unknown corners"),
+                    (dict(anti_roll_bar={"middle": 1.0}), "anti_roll_bar axles are 'front' and 'rear'"),
+                    (dict(stops={"k": 1.0}), "stops must be"),
+                    (dict(anti_roll_bar={"front": -1.0}), "torsion spring 'anti-roll bar front': stiffness")]:
+        with pytest.raises(ModelError, match=msg):
+            vh.full_vehicle(**kw)
