@@ -8,12 +8,15 @@ threads of ``mujoco.rollout`` or ``mujoco.batch`` (which require C callbacks); t
 installs it through ``ctypes`` as MuJoCo's engineers recommend. The force law is the one of
 :func:`particlesim.mechanism.forces.point_forces`:
 
-    d = p . n - ground - radius;   f = -(k d + c v . n) n   while d < 0,
+    d = p . n - ground - radius - h(t);   f = -(k d + c (v . n - h'(t))) n   while d < 0,
 
-applied at a site through its translational Jacobian. Geometry and default constants (up to :data:`MAX_TYRES`
-tyres) are set with :func:`set_tyres`; a model with a ``numeric`` element ``i`` of size 2 overrides tyre ``i``'s
-stiffness and damping with it (:func:`tyre_numeric` writes the element), so every model of a batch can carry its
-own tyre. The callback itself is stateless (it allocates on MuJoCo's own stack), so it is safe on every thread.
+applied at a site through its translational Jacobian, ``h`` the tyre's road (0 for a plane): a sum of the roads of
+:mod:`particlesim.scenes.roads` (``Bump``, ``SineSum``, ``Sum`` of those), evaluated in closed form with its time
+derivative at the stage time ``d->time`` (:func:`road_terms`; the same formulas, the same parameters). Geometry,
+roads and default constants (up to :data:`MAX_TYRES` tyres) are set with :func:`set_tyres`; a model with a
+``numeric`` element ``i`` of size 2 overrides tyre ``i``'s stiffness and damping with it (:func:`tyre_numeric` writes
+the element), so every model of a batch can carry its own tyre. The callback itself is stateless (it allocates on
+MuJoCo's own stack), so it is safe on every thread.
 """
 
 from __future__ import annotations
@@ -28,14 +31,18 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-__all__ = ["MAX_TYRES", "MAX_DOF", "set_tyres", "install_tyres", "install_sine_torques", "uninstall", "compiled_library",
-           "tyre_numeric", "python_tyre"]
+__all__ = ["MAX_TYRES", "MAX_DOF", "MAX_ROAD_TERMS", "MAX_ROAD_WAVES", "set_tyres", "install_tyres",
+           "install_sine_torques", "uninstall", "compiled_library", "tyre_numeric", "python_tyre", "road_terms",
+           "compiled_roads"]
 
 MAX_TYRES = 8
 
 _SOURCE = r"""
 #include <math.h>
 #include <mujoco/mujoco.h>
+#ifndef M_PI
+#define M_PI 3.14159265358979323846
+#endif
 
 #define MAX_TYRES 8
 static int n_tyres = 0;
@@ -51,8 +58,59 @@ void ps_set_tyre(int i, int site, double nx, double ny, double nz, double ground
 
 void ps_set_count(int n) { n_tyres = n; }
 
+/* road heights h_i(t) and rates h_i'(t) under the tyres: terms of particlesim.scenes.roads, summed per tyre.
+   kind 0, Bump (height, start, duration); kind 1, SineSum (speed, offset, start, fade) of waves w0 .. w0+nw-1
+   (amplitude, wavenumber, phase) */
+#define MAX_ROAD_TERMS 64
+#define MAX_ROAD_WAVES 4096
+static int n_road = 0;
+static int road_tyre[MAX_ROAD_TERMS], road_kind[MAX_ROAD_TERMS], road_w0[MAX_ROAD_TERMS], road_nw[MAX_ROAD_TERMS];
+static double road_par[MAX_ROAD_TERMS][4];
+static double road_wave[MAX_ROAD_WAVES][3];
+
+void ps_set_road_count(int n) { n_road = n; }
+
+void ps_set_road(int j, int tyre, int kind, double a, double b, double c, double e, int w0, int nw) {
+  road_tyre[j] = tyre; road_kind[j] = kind; road_w0[j] = w0; road_nw[j] = nw;
+  road_par[j][0] = a; road_par[j][1] = b; road_par[j][2] = c; road_par[j][3] = e;
+}
+
+void ps_set_wave(int w, double amplitude, double wavenumber, double phase) {
+  road_wave[w][0] = amplitude; road_wave[w][1] = wavenumber; road_wave[w][2] = phase;
+}
+
+static double clip01(double u) { return u < 0.0 ? 0.0 : (u > 1.0 ? 1.0 : u); }
+
+void ps_road_eval(double t, double* h, double* rate) {
+  for (int i = 0; i < MAX_TYRES; i++) { h[i] = 0.0; rate[i] = 0.0; }
+  for (int j = 0; j < n_road; j++) {
+    const double* p = road_par[j];
+    double v, dv = 0.0;
+    if (road_kind[j] == 0) {  /* height (1 - cos(2 pi s)) / 2, s = clip((t - start) / duration) */
+      double u = (t - p[1]) / p[2], s = clip01(u);
+      v = p[0] * 0.5 * (1.0 - cos(2.0 * M_PI * s));
+      if (u > 0.0 && u < 1.0) dv = p[0] * 0.5 * (sin(2.0 * M_PI * s) * (2.0 * M_PI / p[2]));
+    } else {  /* w(t) sum_k a_k sin(k_k x + phi_k), x = speed (t - start) - offset, w = smoothstep((t-start)/fade) */
+      double x = p[0] * (t - p[2]) - p[1], u = (t - p[2]) / p[3], s = clip01(u);
+      double w = 0.5 - 0.5 * cos(M_PI * s), dw = (u > 0.0 && u < 1.0) ? 0.5 * sin(M_PI * s) * (M_PI / p[3]) : 0.0;
+      double sum = 0.0, dsum = 0.0;
+      for (int k = road_w0[j]; k < road_w0[j] + road_nw[j]; k++) {
+        double arg = road_wave[k][1] * x + road_wave[k][2];
+        sum += road_wave[k][0] * sin(arg);
+        dsum += road_wave[k][0] * (cos(arg) * (road_wave[k][1] * p[0]));
+      }
+      v = w * sum;
+      dv = dw * sum + w * dsum;
+    }
+    h[road_tyre[j]] += v;
+    rate[road_tyre[j]] += dv;
+  }
+}
+
 void ps_tyre_passive(const mjModel* m, mjData* d) {
   int nv = m->nv;
+  double road[MAX_TYRES], road_rate[MAX_TYRES];
+  ps_road_eval(d->time, road, road_rate);
   mj_markStack(d);
   mjtNum* jac = mj_stackAllocNum(d, 3 * nv);
   for (int i = 0; i < n_tyres; i++) {
@@ -64,7 +122,7 @@ void ps_tyre_passive(const mjModel* m, mjData* d) {
       p[6] = m->numeric_data[m->numeric_adr[i] + 1];
     }
     const mjtNum* x = d->site_xpos + 3 * tyre_site[i];
-    double dist = p[0] * x[0] + p[1] * x[1] + p[2] * x[2] - p[3] - p[4];
+    double dist = p[0] * x[0] + p[1] * x[1] + p[2] * x[2] - p[3] - p[4] - road[i];
     if (dist >= 0.0) continue;
     mj_jacSite(m, d, jac, NULL, tyre_site[i]);
     double vn = 0.0;
@@ -72,7 +130,7 @@ void ps_tyre_passive(const mjModel* m, mjData* d) {
       double jn = p[0] * jac[j] + p[1] * jac[nv + j] + p[2] * jac[2 * nv + j];
       vn += jn * d->qvel[j];
     }
-    double f = -(p[5] * dist + p[6] * vn);
+    double f = -(p[5] * dist + p[6] * (vn - road_rate[i]));
     for (int j = 0; j < nv; j++) {
       double jn = p[0] * jac[j] + p[1] * jac[nv + j] + p[2] * jac[2 * nv + j];
       d->qfrc_passive[j] += jn * f;
@@ -137,27 +195,97 @@ def compiled_library() -> ctypes.CDLL:
     return _LIB
 
 
-def set_tyres(tyres) -> None:
-    """``tyres``: ``(site id, normal (3,), ground, radius, stiffness, damping)`` per tyre."""
+def set_tyres(tyres, roads=None) -> None:
+    """``tyres``: ``(site id, normal (3,), ground, radius, stiffness, damping)`` per tyre; ``roads``: per tyre a
+    road of :mod:`particlesim.scenes.roads` or ``None`` (a plane; default for all), see :func:`road_terms`."""
     lib = compiled_library()
     if len(tyres) > MAX_TYRES:
         raise ValueError(f"at most {MAX_TYRES} tyres, got {len(tyres)}")
+    roads = [None] * len(tyres) if roads is None else list(roads)
+    if len(roads) != len(tyres):
+        raise ValueError(f"roads: one per tyre (None for a plane), got {len(roads)} for {len(tyres)} tyres")
+    terms = [(i, kind, par, waves) for i, road in enumerate(roads) if road is not None
+             for kind, par, waves in road_terms(road)]
+    n_waves = sum(len(w) for *_, w in terms)
+    if len(terms) > MAX_ROAD_TERMS or n_waves > MAX_ROAD_WAVES:
+        raise ValueError(f"roads: at most {MAX_ROAD_TERMS} terms and {MAX_ROAD_WAVES} sinusoids in all, got "
+                         f"{len(terms)} and {n_waves}")
     for i, (site, normal, ground, radius, k, c) in enumerate(tyres):
         n = np.asarray(normal, dtype=float)
         lib.ps_set_tyre(ctypes.c_int(i), ctypes.c_int(int(site)), *(ctypes.c_double(float(v)) for v in
                                                   (n[0], n[1], n[2], ground, radius, k, c)))
+    w0 = 0
+    for j, (i, kind, par, waves) in enumerate(terms):
+        for w, (a, kw, ph) in enumerate(waves):
+            lib.ps_set_wave(ctypes.c_int(w0 + w), *(ctypes.c_double(v) for v in (a, kw, ph)))
+        lib.ps_set_road(ctypes.c_int(j), ctypes.c_int(i), ctypes.c_int(_KINDS.index(kind)),
+                        *(ctypes.c_double(v) for v in par), ctypes.c_int(w0), ctypes.c_int(len(waves)))
+        w0 += len(waves)
+    lib.ps_set_road_count(ctypes.c_int(len(terms)))
     lib.ps_set_count(ctypes.c_int(len(tyres)))
 
 
 _CALLBACK = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p)
 
 
-def install_tyres(tyres) -> None:
-    """Set the tyres and install the compiled callback as ``mjcb_passive`` (global to the process, as MuJoCo's
-    callbacks are). The bindings take a ctypes function and install its C address, so MuJoCo calls the compiled
-    code directly, on any thread."""
-    set_tyres(tyres)
+def install_tyres(tyres, roads=None) -> None:
+    """Set the tyres (and their roads, :func:`set_tyres`) and install the compiled callback as ``mjcb_passive``
+    (global to the process, as MuJoCo's callbacks are). The bindings take a ctypes function and install its C
+    address, so MuJoCo calls the compiled code directly, on any thread."""
+    set_tyres(tyres, roads)
     mujoco.set_mjcb_passive(ctypes.cast(compiled_library().ps_tyre_passive, _CALLBACK))
+
+
+MAX_ROAD_TERMS = 64
+MAX_ROAD_WAVES = 4096
+_KINDS = ("bump", "sines")
+
+
+def _scalar(road, field: str) -> float:
+    v = np.asarray(getattr(road, field), dtype=float)
+    if v.shape != () or not np.isfinite(v):
+        raise ValueError(f"{type(road).__name__}.{field} must be one finite number, got {v!r}")
+    return float(v)
+
+
+def road_terms(road) -> list[tuple[str, tuple, list]]:
+    """The compiled callback's terms of ``road``, read from its arrays: ``("bump", (height, start, duration), [])``
+    for a :class:`~particlesim.scenes.roads.Bump`, ``("sines", (speed, offset, start, fade), [(amplitude,
+    wavenumber, phase), ...])`` for a :class:`~particlesim.scenes.roads.SineSum`, a
+    :class:`~particlesim.scenes.roads.Sum` flattened into its parts' terms. Any other road (a function, a
+    subclass, another Module) raises ``NotImplementedError`` naming its type: the callback evaluates these closed
+    forms only."""
+    from ..scenes import roads as rd
+
+    if type(road) is rd.Sum:
+        return [term for part in road.roads for term in road_terms(part)]
+    if type(road) is rd.Bump:
+        par = tuple(_scalar(road, f) for f in ("height", "start", "duration"))
+        if par[2] <= 0.0:
+            raise ValueError(f"Bump.duration must be positive, got {par[2]}")
+        return [("bump", par, [])]
+    if type(road) is rd.SineSum:
+        par = tuple(_scalar(road, f) for f in ("speed", "offset", "start", "fade"))
+        if par[3] <= 0.0:
+            raise ValueError(f"SineSum.fade must be positive, got {par[3]}")
+        waves = [np.asarray(getattr(road, f), dtype=float) for f in ("amplitude", "wavenumber", "phase")]
+        if not (waves[0].ndim == 1 and waves[0].shape == waves[1].shape == waves[2].shape) or \
+                not all(np.all(np.isfinite(w)) for w in waves):
+            raise ValueError("SineSum: amplitude, wavenumber and phase must be finite and of one length (K,), got "
+                             f"shapes {[w.shape for w in waves]}")
+        return [("sines", par, [tuple(float(v) for v in row) for row in np.stack(waves, axis=1)])]
+    raise NotImplementedError(f"a road of type {type(road).__name__} has no compiled form: the tyre callback "
+                              "evaluates Bump, SineSum and Sum of those (particlesim.scenes.roads)")
+
+
+def compiled_roads(t: float) -> tuple[np.ndarray, np.ndarray]:
+    """The compiled road heights and their time derivatives ``(MAX_TYRES,)`` each at time ``t``, of the roads last
+    set (:func:`set_tyres`; zero for a tyre without one): what the callback reads at a stage time."""
+    lib = compiled_library()
+    h, rate = np.zeros(MAX_TYRES), np.zeros(MAX_TYRES)
+    ptr = ctypes.POINTER(ctypes.c_double)
+    lib.ps_road_eval(ctypes.c_double(float(t)), h.ctypes.data_as(ptr), rate.ctypes.data_as(ptr))
+    return h, rate
 
 
 MAX_DOF = 256

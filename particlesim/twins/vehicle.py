@@ -14,12 +14,17 @@ its springs' and tyres' parameters), so that it follows ``with_params`` and any 
 * every spring-damper of ``mech.topo.spring_names`` (springs and shocks) is a spatial tendon with stiffness, damping
   and spring length: the same law (force along the line, linear in length and length rate);
 * the one-sided tyres are not MuJoCo elements: the compiled ``mjcb_passive`` of :mod:`.callbacks` evaluates our law
-  at every RK4 stage, so :func:`twin_rollout` runs MuJoCo's native loop (``mujoco.rollout``).
+  at every RK4 stage, so :func:`twin_rollout` runs MuJoCo's native loop (``mujoco.rollout``). A tyre's road
+  (``full_vehicle(roads=...)``: ``Bump``, ``SineSum`` and ``Sum`` of those from :mod:`particlesim.scenes.roads`) is
+  evaluated there in closed form at the stage time ``d->time``, from the road's own arrays, its time derivative
+  entering the damping as in :func:`particlesim.mechanism.forces.point_forces` (gap ``z - ground - radius - h(t)``,
+  rate ``v_z - h'(t)``).
 
-Not represented (refused by name): tyre road functions (``mech.tyre_roads``), a tyre force applied away from its
-measuring point, applied loads, drivers, any force element other than spring-dampers and tyres (rotational springs,
-and any later kind), bodies other than the chassis and the three per corner.
-The twin starts from rest (MuJoCo's velocities of our particle velocities are not mapped).
+Not represented (refused by name): any other road (a Python function, a road of the point ``ground(t, p)``), a
+tyre force applied away from its measuring point, applied loads, drivers, any force element other than
+spring-dampers and tyres (rotational springs, and any later kind), bodies other than the chassis and the three per
+corner. The twin starts from rest at ``t = 0`` (MuJoCo's velocities of our particle velocities are not mapped),
+from any configuration on the constraints: the assembly ``q0`` or a static equilibrium.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ from mujoco import rollout as mj_rollout
 
 from . import callbacks
 
-__all__ = ["twin_xml", "twin_rollout", "attitude", "corners", "solref_tc"]
+__all__ = ["twin_xml", "twin_model", "install_callback", "twin_rollout", "attitude", "corners", "solref_tc"]
 
 _NAMED = {"particle_names", "body_names", "point_names", "spring_names", "tyre_names"}  # what the twin represents
 _SOLIMP = "0.9999 0.9999 0.001 0.5 2"
@@ -59,12 +64,26 @@ def corners(mech) -> list[str]:
     return found
 
 
+def _roads(mech) -> list:
+    """Per tyre its road (``None``: the plane), refusing any the compiled callback cannot evaluate, by name."""
+    topo = mech.topo
+    if not topo.tyre_road_args:
+        return [None] * len(topo.tyre_names)
+    for name, arity, road in zip(topo.tyre_names, topo.tyre_road_args, mech.tyre_roads):
+        if arity == 2:
+            raise NotImplementedError(f"vehicle twin: tyre '{name}' runs on a road of the point, ground(t, p); the "
+                                      f"twin's tyre callback evaluates roads of time only")
+        if arity == 1:
+            try:
+                callbacks.road_terms(road)
+            except (NotImplementedError, ValueError) as e:
+                raise NotImplementedError(f"vehicle twin: tyre '{name}': {e}") from None
+    return [road if arity else None for arity, road in zip(topo.tyre_road_args, mech.tyre_roads)]
+
+
 def _refuse_unsupported(mech) -> None:
     topo = mech.topo
-    roads = [n for n, a in zip(topo.tyre_names, topo.tyre_road_args) if a] if topo.tyre_road_args else []
-    if roads or any(r is not None for r in mech.tyre_roads):
-        raise NotImplementedError(f"vehicle twin: tyres {roads or list(topo.tyre_names)} run on road functions; the "
-                                  f"twin's compiled tyre callback knows flat ground planes only")
+    _roads(mech)
     if topo.tyre_apply and tuple(topo.tyre_apply) != tuple(topo.tyre_points):
         raise NotImplementedError("vehicle twin: a tyre force applied away from its measuring point is not supported")
     if len(topo.tyre_names) > callbacks.MAX_TYRES:
@@ -200,6 +219,17 @@ def _quat(fr: _Frames, body: str) -> np.ndarray:
     return quat
 
 
+def twin_model(mech, q0, timestep: float = 1e-4, tc: float | None = None) -> mujoco.MjModel:
+    """The compiled twin of ``mech`` at ``q0`` (:func:`twin_xml`); run it with :func:`install_callback` done."""
+    return mujoco.MjModel.from_xml_string(twin_xml(mech, q0, timestep, tc))
+
+
+def install_callback(m: mujoco.MjModel, mech) -> None:
+    """Install the compiled tyre callback (``mjcb_passive``, process-global) for the twin ``m`` of ``mech``: its
+    tyres and their roads. Remove it with :func:`particlesim.twins.callbacks.uninstall`."""
+    callbacks.install_tyres(_tyres(m, mech), _roads(mech))
+
+
 def _tyres(m: mujoco.MjModel, mech) -> list:
     """The compiled callback's tyres: ``(site, normal, ground, radius, stiffness, damping)`` per tyre of ``mech``."""
     site = lambda k: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, mech.topo.point_names[k])  # noqa: E731
@@ -217,7 +247,8 @@ def attitude(rot, rot0) -> tuple[np.ndarray, np.ndarray]:
 
 def twin_rollout(mech, q0, t_end: float, timestep: float = 1e-4, *, save_dt: float = 0.01,
                  tc: float | None = None) -> dict[str, np.ndarray]:
-    """Release the twin from rest at ``q0`` and run it to ``t_end`` with MuJoCo C RK4 in ``mujoco.rollout``'s
+    """Release the twin from rest at ``q0`` (from :func:`~particlesim.mechanism.static_equilibrium` too: any
+    configuration on the constraints) at ``t = 0`` and run it to ``t_end`` with MuJoCo C RK4 in ``mujoco.rollout``'s
     native loop (the compiled tyre callback installed for the run and removed afterwards). Returns, every
     ``save_dt`` (a multiple of ``timestep`` dividing ``t_end``): ``t``; ``heave``, the chassis centre-of-mass height
     [m]; ``pitch`` and ``roll`` of the chassis since ``q0`` [rad] (:func:`attitude`); the loops' residuals per
@@ -226,9 +257,9 @@ def twin_rollout(mech, q0, t_end: float, timestep: float = 1e-4, *, save_dt: flo
     per, n_save = (int(round(x)) for x in (save_dt / timestep, t_end / save_dt))
     if abs(per * timestep - save_dt) > 1e-9 * save_dt or abs(n_save * save_dt - t_end) > 1e-9 * t_end:
         raise ValueError(f"save_dt {save_dt} must be a multiple of timestep {timestep} and divide t_end {t_end}")
-    m = mujoco.MjModel.from_xml_string(twin_xml(mech, q0, timestep, tc))
+    m = twin_model(mech, q0, timestep, tc)
     d = mujoco.MjData(m)
-    callbacks.install_tyres(_tyres(m, mech))
+    install_callback(m, mech)
     try:
         mujoco.mj_forward(m, d)
         state0 = np.zeros((1, mujoco.mj_stateSize(m, _STATE)))

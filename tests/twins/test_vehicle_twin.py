@@ -13,6 +13,10 @@ Error sources of the twin, each measured here rather than assumed:
   from rest keeps every tyre in contact, so that run has no switch.
 
 Ours: adaptive Tsit5 at rtol 1e-10, atol 1e-12 (measured 7e-14 m from Dopri8 at rtol 1e-12 on the heave).
+
+Roads (``full_vehicle(roads=...)``): the compiled callback evaluates the roads of :mod:`particlesim.scenes.roads` in
+closed form at the stage time; its heights and rates equal JAX's values and ``jax.jvp`` of the roads themselves, and
+the ride over a bump and ISO tracks converges to ours (run with located events) at the loops' second order.
 """
 
 import jax
@@ -23,7 +27,9 @@ import pytest
 
 from particlesim.inertia import RigidInertia
 from particlesim.mechanism import MechanismBuilder, body_com_positions, body_poses, simulate_mechanism
-from particlesim.scenes.vehicle import full_vehicle
+from particlesim.scenes import roads as rd
+from particlesim.scenes.vehicle import WHEELBASE, full_vehicle
+from particlesim.twins import callbacks
 from particlesim.twins import vehicle as tv
 
 T_END, SAVE_DT = 0.5, 0.01
@@ -39,6 +45,10 @@ RISE_MIN = 0.05  # m: the chassis rises 7-9 cm (B6), so the comparison is of a m
 RK4_SHARE = 1e-2  # at fixed tc, the heave change from halving dt, relative to the twin's error (measured 4e-4)
 DROP = 0.05  # m: ground lowered under every tyre for the landing run
 LANDING_COEF = 3e-2  # m/s: the landing error bound per unit step (first order; measured 4.5e-3 to 1e-2)
+ROAD_ATOL = 1e-14  # compiled road heights [m] and rates [m/s] against JAX's (measured 7e-17 m, 2.8e-16 m/s)
+ROAD_BUMP = 0.01  # m, under the front wheels: small enough that every tyre stays in contact (least margin 6.8 mm)
+ROAD_SPEED = 10.0  # m/s, of the ISO 8608 tracks (rear wheels a wheelbase behind)
+ROAD_EFFECT_MIN = 5e-3  # m: the roads move our heave this far from the flat-ground twin (measured 2.6e-2 m)
 
 
 def _chassis(mech, q):
@@ -172,15 +182,65 @@ def test_twin_follows_with_params(car):
     assert m.opt.gravity[2] == -9.7
 
 
+def _ride_roads():
+    """A bump under the front wheels from 0.1 s (0.1 s long) and ISO 8608 class B tracks under all four (left and
+    right seeds 1 and 2, faded in from 0.05 s; the rear wheels a wheelbase behind the front)."""
+    def iso(c):
+        return rd.iso8608("B", ROAD_SPEED, seed=1 if c[1] == "L" else 2, offset=0.0 if c[0] == "F" else WHEELBASE,
+                          start=0.05, fade=0.1, n_waves=16)
+
+    return {c: rd.Sum(rd.Bump(ROAD_BUMP, 0.1, 0.1), iso(c)) if c[0] == "F" else iso(c)
+            for c in ("FL", "FR", "RL", "RR")}
+
+
+def test_compiled_roads_equal_ours():
+    """The callback's closed forms (heights and time derivatives, at the stage time) against JAX's value and
+    ``jax.jvp`` of the same road Modules, before, during and after the bump and the tracks' fade-in."""
+    roads = [*_ride_roads().values(), rd.Bump(-0.02, 0.0, 0.3), None]
+    callbacks.set_tyres([(0, (0.0, 0.0, 1.0), 0.0, 0.5, 1.0, 1.0)] * len(roads), roads)
+    ts = np.linspace(-0.1, 1.0, 1101)
+    compiled = np.array([callbacks.compiled_roads(t) for t in ts])  # (T, 2, MAX_TYRES)
+    for i, road in enumerate(roads):
+        if road is None:
+            assert not np.any(compiled[:, :, i])
+            continue
+        h, rate = jax.vmap(lambda t: jax.jvp(road, (t,), (jnp.ones_like(t),)))(jnp.asarray(ts))
+        assert np.abs(h).max() > 0.01 and np.abs(rate).max() > 0.1  # the roads move
+        np.testing.assert_allclose(compiled[:, 0, i], h, rtol=0, atol=ROAD_ATOL)
+        np.testing.assert_allclose(compiled[:, 1, i], rate, rtol=0, atol=ROAD_ATOL)
+
+
+def test_ride_over_roads_converges_to_ours(car):
+    """Released from rest at ``q0`` over :func:`_ride_roads` (every tyre stays in contact, so no switch): the
+    twin's heave error falls as dt^2 (the loops' softness, as on flat ground), and the roads move the car far more
+    than that error (against the twin on the flat ground)."""
+    mech, q0 = full_vehicle(roads=_ride_roads())
+    q0 = jnp.asarray(q0)
+    sol = simulate_mechanism(mech, q0, jnp.zeros_like(q0), 0.0, T_END, rtol=1e-10, atol=1e-12, saveat_ts=TS,
+                             events=True)
+    assert bool(sol.ok) and not np.any(np.isfinite(np.asarray(sol.events.ts)))  # no tyre left the road
+    ours = _chassis(mech, sol.q)["heave"]
+    errs = [np.abs(tv.twin_rollout(mech, q0, T_END, dt, save_dt=SAVE_DT)["heave"] - ours).max() for dt in DTS]
+    flat = np.abs(tv.twin_rollout(car[0], car[1], T_END, DTS[-1], save_dt=SAVE_DT)["heave"] - ours).max()
+    print(f"roads: heave errors {[f'{e:.2e}' for e in errs]} m at dt {DTS} s, orders {np.round(_orders(errs), 3)}; "
+          f"the flat-ground twin {flat:.2e} m away")
+    assert np.all(np.abs(_orders(errs) - ORDER) <= ORDER_TOL)
+    assert flat >= ROAD_EFFECT_MIN and errs[-1] <= HEAVE_TARGET
+
+
 def test_callback_removed_and_roads_refused(car):
     mech, q0 = car
     tv.twin_rollout(mech, q0, 2 * SAVE_DT, DTS[0], save_dt=SAVE_DT)
     assert mujoco.get_mjcb_passive() is None
-    mb = MechanismBuilder()
-    mb.particle("hub", (0.0, 0.0, 0.5))
-    mb.particle("end", (0.2, 0.0, 0.5))
-    mb.body("axle", RigidInertia.slender_rod(10.0, (0.0, 0.0, 0.5), (0.2, 0.0, 0.5)), ["hub", "end"])
-    mb.tyre("tyre", "hub", 1e5, 1e3, 0.47, ground=lambda t: 0.01 * t)
-    road, r0 = mb.build()
-    with pytest.raises(NotImplementedError, match="road functions"):
-        tv.twin_xml(road, r0)
+    for ground, match in ((lambda t: 0.01 * t, "tyre 'tyre': a road of type function has no compiled form"),
+                          (lambda t, p: 0.01 * p[0], "tyre 'tyre' runs on a road of the point"),
+                          (rd.Sum(rd.Bump(0.01, 0.0, 0.1), lambda t: 0.0), "type function"),
+                          (rd.Bump(0.01, 0.0, -0.1), "duration must be positive")):
+        mb = MechanismBuilder()
+        mb.particle("hub", (0.0, 0.0, 0.5))
+        mb.particle("end", (0.2, 0.0, 0.5))
+        mb.body("axle", RigidInertia.slender_rod(10.0, (0.0, 0.0, 0.5), (0.2, 0.0, 0.5)), ["hub", "end"])
+        mb.tyre("tyre", "hub", 1e5, 1e3, 0.47, ground=ground)
+        road, r0 = mb.build()
+        with pytest.raises(NotImplementedError, match=match):
+            tv.twin_xml(road, r0)
