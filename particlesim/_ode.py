@@ -20,7 +20,7 @@ import dataclasses
 import functools
 import weakref
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Optional
 
 import diffrax
 import equinox as eqx
@@ -111,6 +111,7 @@ class Settings:
     progress: bool = False
     pid: tuple[float, float, float] = _PID_EXPLICIT
     save_ts: bool = False  # save at given times (else at t0 and t1)
+    max_step: Optional[float] = None  # the largest step [s] (None: unbounded)
 
 
 class _ByIdentity:
@@ -143,20 +144,20 @@ def _adjoint(adjoint: str | diffrax.AbstractAdjoint | None) -> diffrax.AbstractA
 
 
 def settings(*, solver: str, adjoint=None, max_steps: int, throw: bool, progress: bool, pid=None,
-             save_ts: bool) -> Settings:
+             save_ts: bool, max_step=None) -> Settings:
     """Validated :class:`Settings`; ``ValueError`` for unknown names, a non-positive step budget, a bad ``pid``.
     Remembered per argument values (typed: ``True`` is not ``1``) when they are hashable and the adjoint is given by
     name, so that a short rollout does not rebuild them on every call."""
     if adjoint is None or isinstance(adjoint, str):  # a user's adjoint object is keyed by identity: not cached
         try:
-            return _settings_cached(solver, adjoint, max_steps, throw, progress, pid, save_ts)
+            return _settings_cached(solver, adjoint, max_steps, throw, progress, pid, save_ts, max_step)
         except TypeError as e:  # unhashable arguments (a pid given as a list): built each call
             if "unhashable" not in str(e):
                 raise
-    return _settings(solver, adjoint, max_steps, throw, progress, pid, save_ts)
+    return _settings(solver, adjoint, max_steps, throw, progress, pid, save_ts, max_step)
 
 
-def _settings(solver, adjoint, max_steps, throw, progress, pid, save_ts) -> Settings:
+def _settings(solver, adjoint, max_steps, throw, progress, pid, save_ts, max_step=None) -> Settings:
     name = solver.lower() if isinstance(solver, str) else solver
     if name not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {sorted(SOLVERS)}")
@@ -167,8 +168,14 @@ def _settings(solver, adjoint, max_steps, throw, progress, pid, save_ts) -> Sett
     pid = tuple(float(v) for v in pid)
     if len(pid) != 3 or not all(np.isfinite(pid)):
         raise ValueError(f"pid must be three finite numbers (pcoeff, icoeff, dcoeff), got {pid!r}")
+    if max_step is not None:
+        if isinstance(max_step, bool) or not isinstance(max_step, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(max_step) or max_step <= 0:
+            raise ValueError(f"max_step must be a positive number of seconds (or None), got {max_step!r}")
+        max_step = float(max_step)
     key = adjoint if adjoint is None or isinstance(adjoint, str) else _ByIdentity(adjoint)
-    return Settings(name, key, _adjoint(adjoint), int(max_steps), bool(throw), bool(progress), pid, bool(save_ts))
+    return Settings(name, key, _adjoint(adjoint), int(max_steps), bool(throw), bool(progress), pid, bool(save_ts),
+                    max_step)
 
 
 _settings_cached = functools.lru_cache(maxsize=256, typed=True)(_settings)
@@ -400,7 +407,7 @@ def _solver_and_controller(cfg: Settings, rtol, atol, projection):
     """The solver (wrapped with the projection, if any) and the PID controller of ``cfg``."""
     implicit = cfg.solver in IMPLICIT_SOLVERS
     controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=cfg.pid[0], icoeff=cfg.pid[1],
-                                       dcoeff=cfg.pid[2])
+                                       dcoeff=cfg.pid[2], dtmax=cfg.max_step)
     kw = {}
     # The Runge–Kutta stage loop: diffrax picks it from the adjoint for a bare solver; a wrapped (projected) one
     # is given it up front: forward mode needs "lax", DirectAdjoint "bounded"; the checkpointed adjoint keeps
@@ -420,7 +427,8 @@ def _solver_and_controller(cfg: Settings, rtol, atol, projection):
 class Events(eqx.Module):
     """The switches located in an evented rollout (:func:`integrate_events`), in order: ``ts`` (E,) their times
     (``inf`` where unused), ``element`` (E,) the index of the switching element (``-1`` unused), ``active`` (E,)
-    whether the element's switched-on law (a tyre in contact, ...) holds after the switch."""
+    whether the element's switched-on law (a tyre in contact, ...) holds after the switch. Elements switching
+    together (within :data:`SIMULTANEOUS`) have a record each, at the same time."""
 
     ts: Float[Array, " E"]
     element: Int[Array, " E"]
@@ -565,16 +573,16 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
         valid = (save >= t_s) & (save <= t_e) & ran
         acc = jax.tree.map(lambda a, v: jnp.where(valid.reshape((-1,) + (1,) * (v.ndim - 1)), v, a), acc, seg)
         new_modes = jnp.where(which, 1.0 - modes, modes)
-        el = jnp.argmax(which)
-        slot = jnp.minimum(n_ev, max_events - 1)
-        record = hit & (n_ev < max_events)
-        ev_t = jnp.where(record, ev_t.at[slot].set(t_e), ev_t)
-        ev_el = jnp.where(record, ev_el.at[slot].set(el), ev_el)
-        ev_on = jnp.where(record, ev_on.at[slot].set(new_modes[el] > 0.5), ev_on)
+        # every element that switched gets its own record (those switching together share the time), in element
+        # order; records beyond the last slot are dropped
+        slot = jnp.where(which, n_ev + jnp.cumsum(which) - 1, max_events)
+        ev_t = ev_t.at[slot].set(t_e, mode="drop")
+        ev_el = ev_el.at[slot].set(jnp.arange(n_surfaces), mode="drop")
+        ev_on = ev_on.at[slot].set(new_modes > 0.5, mode="drop")
         bad = (sol.result != diffrax.RESULTS.successful) & (sol.result != diffrax.RESULTS.event_occurred)
         failed = diffrax.RESULTS.where(bad & (failed == diffrax.RESULTS.successful), sol.result, failed)
         return (t_e, y_e, new_modes, acc, steps + sol.stats["num_accepted_steps"],
-                rejected + sol.stats["num_rejected_steps"], failed, n_ev + hit.astype(int), ev_t, ev_el,
+                rejected + sol.stats["num_rejected_steps"], failed, n_ev + jnp.sum(which), ev_t, ev_el,
                 ev_on), None
 
     acc0 = jax.tree.map(lambda v: jnp.full((save.shape[0],) + v.shape, jnp.nan, v.dtype), y0)

@@ -234,6 +234,7 @@ def simulate(
     progress: bool = False,
     events: bool = False,
     max_events: int = 16,
+    max_step: float | None = None,
 ) -> Solution:
     """Integrate q̈ = dynamics(params, q, q̇, τ) from (q0, qd0) at t0 to t1.
 
@@ -262,6 +263,8 @@ def simulate(
             "direct" (both, more memory), "backsolve", or any diffrax adjoint.
         pid: (pcoeff, icoeff, dcoeff) of the controller; defaults (0, 1, 0) explicit (integral control),
             (0.3, 0.3, 0) implicit.
+        max_step: the largest step [s] (``None``: unbounded), e.g. shorter than a brief input the solver could
+            otherwise stride over.
         throw: if True (default) a failed integration raises at run time (also under jit); if False the
             returned :class:`Solution` has ``ok = False`` and NaN trajectories.
         progress: show a tqdm progress bar.
@@ -293,7 +296,7 @@ def simulate(
     q0 = _ode.as_state(q0)
     qd0 = _ode.as_state(qd0)
     cfg = _ode.settings(solver=solver, adjoint=adjoint, max_steps=max_steps, throw=throw, progress=progress,
-                        pid=pid, save_ts=saveat_ts is not None)
+                        pid=pid, save_ts=saveat_ts is not None, max_step=max_step)
     _check_state(params, q0, qd0)
     t0_, t1_, rtol_, atol_, dt0_, ts, time_bad = _ode.times(t0, t1, rtol, atol, dt0, saveat_ts)
 

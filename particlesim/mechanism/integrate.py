@@ -327,7 +327,7 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
                        rtol: float = 1e-8, atol: float = 1e-10, dt0=None, saveat_ts=None, max_steps: int = 100_000,
                        stabilise: bool = True, baumgarte: float = 0.0, adjoint=None, pid=None, throw: bool = True,
                        progress: bool = False, solve: str = "dense", events: bool = False,
-                       max_events: int = 16) -> Solution:
+                       max_events: int = 16, max_step=None) -> Solution:
     """Integrate the mechanism from ``(q0, qd0)``; returns a :class:`~particlesim.simulate.Solution` whose ``q``
     and ``qd`` are particle positions and velocities ``(T, 3F)``.
 
@@ -354,6 +354,10 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
     :func:`~.forces.one_sided_names`). Without events, a differentiated rollout in which such an element
     switches warns (:class:`SwitchCrossedWarning`). "backsolve" is not available with events.
 
+    ``max_step`` bounds each step [s] (``None``: unbounded). An adaptive solver sees the road only where it
+    steps: from rest it may stride over a short bump whole and never feel it (no crossing either, so ``events``
+    cannot help); a bound below the road's shortest feature (a bump's duration) rules that out.
+
     ``max_steps`` bounds the steps of the run (of each smooth segment, with ``events``); exhausting it raises
     (``throw=True``, at run time) with the usual causes for this mechanism and solver — a stiff element under an
     explicit solver; with exact multipliers, a singular position (build with ``multipliers='least_squares'``) —
@@ -367,7 +371,7 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
     (``jax.errors.JaxRuntimeError``) with the same message.
     """
     cfg = _ode.settings(solver=solver, adjoint=adjoint, max_steps=max_steps, throw=throw, progress=progress,
-                        pid=pid, save_ts=saveat_ts is not None)
+                        pid=pid, save_ts=saveat_ts is not None, max_step=max_step)
     if stabilise and isinstance(cfg.adjoint, diffrax.BacksolveAdjoint):
         raise ValueError(
             "adjoint 'backsolve' cannot differentiate a projected rollout (stabilise=True): it integrates the adjoint "

@@ -166,3 +166,34 @@ def test_bad_road_functions_and_numbers_are_refused_by_name():
         mb.tyre("soft", "A", lambda t: K, C, R)
     with pytest.raises(ModelError, match="tyre 'soft': radius must be a finite and non-negative number, got -0.3"):
         mb.tyre("soft", "A", K, C, -R)
+
+
+def test_a_short_bump_is_felt_with_a_bounded_step():
+    """From rest on a level post, a 2 cm bump lasting 40 ms at t = 1 s: with ``max_step`` below its duration the
+    wheel follows its equation (SciPy, its steps bounded alike); an unbounded adaptive step may stride over it."""
+    from particlesim.scenes.roads import Bump
+
+    bump = Bump(0.02, 1.0, 0.04)
+    mech, q0, qd0 = wheel(bump)
+    ts = np.linspace(0.0, 1.5, 31)
+    sol = simulate_mechanism(mech, q0, qd0, 0.0, 1.5, rtol=1e-10, atol=1e-12, saveat_ts=ts, max_step=0.01)
+    y = np.asarray(sol.q[:, mech.free_slice("A")][:, 1])
+
+    def h(t):
+        return float(bump(t))
+
+    def h_rate(t):
+        return float(jax.jvp(bump, (jnp.asarray(t),), (jnp.asarray(1.0),))[1])
+
+    def rhs(t, s):
+        d = s[0] - h(t) - R
+        f = -(K * d + C * (s[1] - h_rate(t))) if d < 0.0 else 0.0
+        return [s[1], -G + f / M]
+
+    ref = solve_ivp(rhs, (0.0, 1.5), [Y_REST, 0.0], method="DOP853", t_eval=ts, rtol=1e-13, atol=1e-15,
+                    max_step=0.005).y[0]
+    assert np.max(np.abs(y - ref)) <= REF_TOL
+    assert np.max(np.abs(y - Y_REST)) > 1e-3  # the bump was felt
+    for bad in (0.0, -1.0, float("nan"), "1"):
+        with pytest.raises(ValueError, match="max_step must be a positive number"):
+            simulate_mechanism(mech, q0, qd0, 0.0, 1.5, max_step=bad)
