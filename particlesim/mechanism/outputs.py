@@ -86,7 +86,10 @@ def _poses_from_primaries(mech: Mechanism, read, dtype):
         else:
             lp, wp = _frame_points(loc, wld, kind)
             h = jnp.concatenate([lp, jnp.ones(lp.shape[:2] + (1,), lp.dtype)], axis=2)  # (n, 4, 4)
-            a = jnp.linalg.solve(h, wp)  # rows: R^T (3 rows) then origin
+            # rows: R^T (3 rows) then origin. ``h`` holds parameters only: inverted once, so that a batch of states
+            # (a vmapped trajectory) multiplies instead of running a batched LAPACK solve per state, whose work
+            # jaxlib spreads over the intra-op threads (particlesim._threads: two such calls at once deadlock)
+            a = jnp.linalg.inv(h) @ wp
             rr, oo = jnp.swapaxes(a[:, :3], 1, 2), a[:, 3]
         rot, org = rot.at[bs].set(rr), org.at[bs].set(oo)
     return rot, org
