@@ -1,6 +1,6 @@
 """Command line: ``python -m particlesim.cli main`` runs the main job (the quarter-car free response, the
-particle report of its bodies, then Krang falling on fixed wheels); ``quarter-car``, ``particles`` and ``krang``
-run one of them."""
+particle report of its bodies, Krang falling on fixed wheels, then the full vehicle on a four-post rig);
+``quarter-car``, ``particles``, ``krang`` and ``vehicle-ride`` run one of them."""
 
 from __future__ import annotations
 
@@ -59,9 +59,28 @@ def _quarter_car(out: Path) -> None:
     print(f"wrote {out / 'quarter_car.csv'}, {out / 'quarter_car.png'}, {out / 'quarter_car.json'}")
 
 
+def _vehicle_ride(out: Path) -> None:
+    from .reports.vehicle_ride import DURATION, ROAD_CLASS, SPEED, vehicle_ride_report
+
+    print(f"\nFull vehicle (HMMWV corners, 10 DOF) on a four-post rig, {DURATION:g} s: a 5 cm bump under the front "
+          f"wheels, then ISO 8608 class {ROAD_CLASS} at {SPEED:g} m/s ...")
+    f = vehicle_ride_report(out, progress=sys.stdout.isatty())
+    modes = ", ".join(f"{m['mode']} {m['frequency_Hz']:.2f} Hz (zeta {m['damping_ratio']:.2f})" for m in f["modes"][:3])
+    hop = f["modes"][3]
+    print(f"  ride modes: {modes}; {hop['mode']} {hop['frequency_Hz']:.1f} Hz")
+    print(f"  {f['solver']} rtol {f['rtol']:g}, located tyre switches: {f['accepted_steps']} steps, run "
+          f"{f['run_s']:.2f} s (compile {f['compile_s']:.1f} s; rest and modes {f['rest_s'] + f['modes_s']:.1f} s)")
+    off = [s for s in f["switches"] if not s["in_contact_after"]]
+    print(f"  RMS chassis vertical acceleration on the random road {f['rms_acceleration_iso_m_s2']:.3f} m/s^2; "
+          f"peak wheel load {max(f['peak_wheel_loads_N'].values()) / 1e3:.1f} kN; "
+          + (f"{len(off)} tyre lift-offs from {off[0]['t_s']:.3f} s" if off else "no tyre left its post"))
+    print(f"wrote {out / 'vehicle_ride.csv'}, {out / 'vehicle_ride.png'}, {out / 'vehicle_ride.json'}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="particlesim", description=__doc__)
-    parser.add_argument("job", nargs="?", default="main", choices=["main", "quarter-car", "particles", "krang"])
+    parser.add_argument("job", nargs="?", default="main", choices=["main", "quarter-car", "particles", "krang",
+                                                                   "vehicle-ride"])
     parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     args = parser.parse_args(argv)
     if args.job in ("main", "quarter-car"):
@@ -70,6 +89,8 @@ def main(argv: list[str] | None = None) -> int:
         _particles(args.out)
     if args.job in ("main", "krang"):
         _krang(args.out)
+    if args.job in ("main", "vehicle-ride"):
+        _vehicle_ride(args.out)
     return 0
 
 

@@ -1,0 +1,297 @@
+"""Write ``notebooks/vehicle_ride.ipynb`` (outputs cleared). Run: ``python notebooks/build_vehicle_ride.py``, then
+execute it in place to save its outputs (``tests/test_notebooks.py`` executes it in CI)."""
+
+from pathlib import Path
+
+import nbformat
+from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+
+CELLS = [
+    new_markdown_cell(
+        "# A ride study on a four-post rig\n\n"
+        "The full vehicle of `particlesim.scenes.vehicle.full_vehicle` (four HMMWV double-wishbone corners read from "
+        "Chrono's JSON file, a 2 t chassis, 10 degrees of freedom; its assumptions B1–B7 are in that module) stands "
+        "on four posts. We run it over a bump and a random road, read its ride modes and frequency response, "
+        "differentiate the ride comfort with respect to the dampers and springs, tune the dampers under a wheel-load "
+        "bound, and identify the dampers back from noisy measurements.\n\n"
+        "The rig, the car at rest and the chassis and wheel-load outputs come from "
+        "`particlesim/reports/vehicle_ride.py`, which `make run` runs too (`out/vehicle_ride.*`). Every rollout below "
+        "compiles once: other parameter values, roads of the same shape and other initial states reuse it."
+    ),
+    new_code_cell(
+        "import time\n\n"
+        "import jax\n"
+        "import jax.numpy as jnp\n"
+        "import matplotlib.pyplot as plt\n"
+        "import numpy as np\n"
+        "import optax\n"
+        "from IPython.display import Markdown, display\n"
+        "from scipy.optimize import curve_fit\n\n"
+        "import particlesim  # float64\n"
+        "from particlesim.identify import fit_traces, trace_model\n"
+        "from particlesim.mechanism import (accelerations, linearize, modes, project, simulate_mechanism,\n"
+        "                                   static_equilibrium)\n"
+        "from particlesim.reports import vehicle_ride as vr\n\n"
+        "started = time.perf_counter()\n"
+        "CORNERS = ['FL', 'FR', 'RL', 'RR']\n\n\n"
+        "def table(header, rows):\n"
+        "    \"\"\"A Markdown table.\"\"\"\n"
+        "    lines = ['| ' + ' | '.join(header) + ' |', '|' + '---|' * len(header)]\n"
+        "    return Markdown('\\n'.join(lines + ['| ' + ' | '.join(map(str, r)) + ' |' for r in rows]))\n\n\n"
+        "roads = vr.rig_roads()  # {corner: road}: the posts' heights as functions of time\n"
+        "mech, q_rest = vr.ride_car(roads)  # full_vehicle(roads=roads) and its static equilibrium\n"
+        "motion = vr.ChassisMotion(mech, q_rest)  # heave, pitch, roll of the chassis since rest\n"
+        "static = np.asarray(vr.wheel_loads(mech, 0.0, q_rest, jnp.zeros_like(q_rest)))\n"
+        "print(f'{mech.n_coords // 3} free particles, {mech.n_constraints} constraints; static wheel loads '\n"
+        "      f'{np.round(static).tolist()} N')"
+    ),
+    new_markdown_cell(
+        "## Four-post rig: a bump, then a random road\n\n"
+        "A 5 cm raised-cosine bump rises under both front wheels at 0.3 s (0.1 s long); from 1.2 s an ISO 8608 "
+        "class C road at 15 m/s fades in under all four: left and right tracks from independent seeds, each rear "
+        "wheel on its front wheel's track a wheelbase (0.22 s) later. The bump throws the front wheels off their "
+        "posts: with `events=True` the rollout locates each lift-off and landing and switches the tyre's law there.\n\n"
+        "The library has no public output for a tyre's force, so `vr.wheel_loads` computes it from the tyre law, "
+        "`-(k d + c d')` while the deflection `d` (`particlesim.mechanism.forces.tyre_deflections`) is negative."
+    ),
+    new_code_cell(
+        "ts = np.linspace(0.0, vr.DURATION, vr.N_SAVE)  # 200 Hz\n\n\n"
+        "def rig_run(m, q, qd=None):\n"
+        "    return simulate_mechanism(m, q, jnp.zeros_like(q) if qd is None else qd, 0.0, vr.DURATION, saveat_ts=ts,\n"
+        "                              events=True, **vr.SOLVER)\n\n\n"
+        "tic = time.perf_counter()\n"
+        "sol = jax.block_until_ready(rig_run(mech, q_rest))\n"
+        "print(f'rollout (compile included) {time.perf_counter() - tic:.1f} s, {int(sol.steps)} steps')\n"
+        "out = {k: np.asarray(v) for k, v in vr.ride_outputs(mech, motion, jnp.asarray(ts), sol.q, sol.qd).items()}\n"
+        "posts = np.stack([np.asarray(jax.vmap(roads[c])(jnp.asarray(ts))) for c in CORNERS], axis=1)\n"
+        "vr.plot_ride(ts, posts, out, static)\n"
+        "plt.show()\n"
+        "used = np.asarray(sol.events.element) >= 0\n"
+        "for t, e, on in zip(*(np.asarray(x)[used] for x in (sol.events.ts, sol.events.element, sol.events.active))):\n"
+        "    print(f'{t:.4f} s  {mech.topo.tyre_names[e]} {\"lands\" if on else \"leaves its post\"}')\n"
+        "iso = ts >= vr.ISO_START + vr.ISO_FADE\n"
+        "rms = np.sqrt(np.mean(out['acceleration'][iso] ** 2))\n"
+        "print(f'RMS chassis vertical acceleration on the random road: {rms:.3f} m/s²')\n"
+        "print('peak wheel loads [kN]:', np.round(out['loads'].max(axis=0) / 1e3, 2), ' least:',\n"
+        "      np.round(out['loads'].min(axis=0) / 1e3, 2))"
+    ),
+    new_markdown_cell(
+        "The least front loads are negative: just before a lift-off the tyre law's damping term pulls the wheel down "
+        "(the law is not clipped at zero force); the wheels are then off their posts until they land."
+    ),
+    new_markdown_cell(
+        "## Ride modes\n\n"
+        "`modes` linearises the constrained equations about the rest state. Three motions are free (the car's "
+        "horizontal position and heading on vertical tyres); the others are the chassis's heave, pitch and roll and "
+        "the wheels' hop and tramp, each named from its shape."
+    ),
+    new_code_cell(
+        "md = modes(mech, q_rest)\n"
+        "rows = vr.mode_table(mech, q_rest, md)\n"
+        "table(['mode', 'natural frequency [Hz]', 'damped frequency [Hz]', 'damping ratio'],\n"
+        "      [(r['mode'], f\"{r['frequency_Hz']:.3f}\", f\"{r['damped_frequency_Hz']:.3f}\", f\"{r['damping_ratio']:.3f}\")\n"
+        "       for r in rows])"
+    ),
+    new_markdown_cell(
+        "### Against the time response\n\n"
+        "With the posts still, the car is released from rest along a mode's shape (1 mm at most, projected onto the "
+        "constraints) and the matching chassis motion is fitted with a damped sinusoid after 0.2 s, when the wheel "
+        "hop it also excites has died out. Its frequency must be the linear model's damped frequency within 1 %. The "
+        "still posts are the same roads starting after the run, so the rig's compiled rollout is reused."
+    ),
+    new_code_cell(
+        "still, _ = vr.ride_car(vr.rig_roads(bump_height=0.0, bump_start=vr.STILL, iso_start=vr.STILL))\n"
+        "late = (ts >= 0.2) & (ts <= 2.5)\n\n\n"
+        "def damped(t, a, sigma, w, phase, c):\n"
+        "    return a * np.exp(-sigma * t) * np.cos(w * t + phase) + c\n\n\n"
+        "check = []\n"
+        "for r in (r for r in rows if r['mode'] in ('heave', 'pitch', 'roll')):\n"
+        "    shape = np.asarray(md.shapes[:, r['index']])\n"
+        "    q_a, qd_a = project(still, q_rest + 1e-3 / np.abs(shape).max() * shape, jnp.zeros_like(q_rest))\n"
+        "    free = rig_run(still, q_a, qd_a)\n"
+        "    y = np.asarray(jax.vmap(lambda x: motion(still, x))(free.q))[:, ('heave', 'pitch', 'roll').index(r['mode'])]\n"
+        "    p0 = [y[late][0], 1.0, 2 * np.pi * 1.0, 0.0, 0.0]  # 1 Hz, 1/s: a start, not the answer\n"
+        "    (_, sigma, w, _, _), _ = curve_fit(damped, ts[late], y[late], p0=p0, maxfev=20000)\n"
+        "    f_fit, f_lin = w / (2 * np.pi), r['damped_frequency_Hz']\n"
+        "    check.append((r['mode'], f'{f_lin:.4f}', f'{f_fit:.4f}', f'{100 * (f_fit / f_lin - 1):+.3f} %',\n"
+        "                  f\"{-complex(md.poles[r['index'], 0]).real:.3f}\", f'{sigma:.3f}'))\n"
+        "    assert abs(f_fit / f_lin - 1) <= 0.01\n"
+        "table(['mode', 'damped frequency, modes [Hz]', 'fitted to the decay [Hz]', 'difference',\n"
+        "       'decay rate, modes [1/s]', 'fitted [1/s]'], check)"
+    ),
+    new_markdown_cell(
+        "## Frequency response\n\n"
+        "`linearize` gives the first-order matrix `A` in coordinates `z` of the admissible motions (`dq = Z z`). The "
+        "road enters through the tyre forces, which the library's linearisation does not take as inputs: the input "
+        "matrix comes from differentiating the constrained accelerations with respect to each tyre's ground height "
+        "(`mech.with_params(tyre={name: {'ground': h}})`, forward mode), `B_h = Zᵀ ∂q̈/∂h` (the acceleration's change "
+        "lies in the admissible motions at rest). A post's rate enters through the tyre's damper, `B_v = (c/k) B_h`. "
+        "Below: chassis heave acceleration per metre of both front posts' displacement. Its value at zero frequency "
+        "is checked against `static_equilibrium` with the front posts raised and lowered by 1 mm."
+    ),
+    new_code_cell(
+        "lin = linearize(mech, q_rest)\n"
+        "tyres = mech.topo.tyre_names\n\n\n"
+        "def with_ground(m, g):\n"
+        "    return m.with_params(tyre={n: {'ground': g[i]} for i, n in enumerate(tyres)})\n\n\n"
+        "dqdd_dh = jax.jacfwd(lambda g: accelerations(with_ground(mech, g), 0.0, q_rest, jnp.zeros_like(q_rest)))(\n"
+        "    mech.tyre_ground)\n"
+        "Z, A = np.asarray(lin.basis), np.asarray(lin.A)\n"
+        "n = Z.shape[1]\n"
+        "front = np.array([1.0, 1.0, 0.0, 0.0])\n"
+        "b_h = Z.T @ np.asarray(dqdd_dh) @ front\n"
+        "b_v = Z.T @ np.asarray(dqdd_dh) @ (front * np.asarray(mech.tyre_damping / mech.tyre_stiffness))\n"
+        "c_heave = np.asarray(jax.grad(lambda x: motion(mech, x)[0])(q_rest)) @ Z\n\n\n"
+        "def heave_per_post(f):\n"
+        "    s = 2j * np.pi * f\n"
+        "    x = np.linalg.solve(s * np.eye(2 * n) - A, np.concatenate([np.zeros(n), b_h + s * b_v]))\n"
+        "    return c_heave @ x[:n]\n\n\n"
+        "f = np.logspace(-1, 1.6, 400)\n"
+        "h_acc = np.array([(2 * np.pi * fi) ** 2 * abs(heave_per_post(fi)) for fi in f])\n"
+        "plt.figure(figsize=(8, 3.5))\n"
+        "plt.loglog(f, h_acc)\n"
+        "for r in rows:\n"
+        "    plt.axvline(r['frequency_Hz'], color='0.7', lw=0.8)\n"
+        "plt.xlabel('frequency [Hz]'); plt.ylabel('|heave acceleration / post| [1/s²]')\n"
+        "plt.title('Front posts to chassis heave acceleration (grey: natural frequencies)'); plt.grid(alpha=0.3)\n"
+        "plt.show()\n"
+        "step = 1e-3\n"
+        "up, down = (static_equilibrium(with_ground(mech, mech.tyre_ground + d * jnp.asarray(front)), q_rest).q\n"
+        "            for d in (step, -step))\n"
+        "gain = float(motion(mech, up)[0] - motion(mech, down)[0]) / (2 * step)\n"
+        "print(f'static gain: linear model {heave_per_post(1e-6).real:.6f}, static equilibria {gain:.6f} m/m')\n"
+        "assert abs(heave_per_post(1e-6).real / gain - 1) < 1e-4"
+    ),
+    new_markdown_cell(
+        "## Gradients of ride comfort\n\n"
+        "The comfort measure is the RMS chassis vertical acceleration on the random road alone (the same rig with "
+        "the bump set to zero height and the road fading in from t = 0; 1.5 s, RMS after the 0.5 s fade). Its gradient "
+        "with respect to the four shock damping rates and the four spring rates comes from `jax.grad` through the "
+        "static equilibrium (a stiffer spring changes the ride height) and the rollout, in log coordinates "
+        "(relative sensitivities). The same compiled function returns each wheel's dynamic load coefficient (RMS of "
+        "load / static load − 1), the road-holding measure used below, and its least load over static. On this road "
+        "the tyres stay on their posts, so the rollout runs without events (it is cheaper to compile); had a tyre "
+        "left its post, `simulate_mechanism` would warn that the derivatives miss the switch. A tolerance of 1e-6 "
+        "suffices here (the central difference below agrees with the gradient to 1e-4 or better)."
+    ),
+    new_code_cell(
+        "iso_mech, _ = vr.ride_car(vr.rig_roads(bump_height=0.0, iso_start=0.0))  # same structure: compiles reused\n"
+        "T_ISO = 1.5\n"
+        "ts_iso = np.linspace(0.0, T_ISO, 301)\n"
+        "window = ts_iso >= vr.ISO_FADE\n\n\n"
+        "def ride(log_k):\n"
+        "    \"\"\"RMS chassis acceleration, each wheel's dynamic load coefficient and least load over static; log_k:\n"
+        "    log shock damping (4), then log spring stiffness (4), corners FL, FR, RL, RR.\"\"\"\n"
+        "    k = jnp.exp(log_k)\n"
+        "    m = iso_mech.with_params(spring={**{f'shock {c}': {'damping': k[i]} for i, c in enumerate(CORNERS)},\n"
+        "                                     **{f'spring {c}': {'stiffness': k[4 + i]} for i, c in enumerate(CORNERS)}})\n"
+        "    q0 = static_equilibrium(m, q_rest).q\n"
+        "    s = simulate_mechanism(m, q0, jnp.zeros_like(q0), 0.0, T_ISO, saveat_ts=ts_iso, solver='dopri8', rtol=1e-6,\n"
+        "                           atol=1e-8)\n"
+        "    o = vr.ride_outputs(m, motion, jnp.asarray(ts_iso), s.q, s.qd)\n"
+        "    load = o['loads'][window] / vr.wheel_loads(m, 0.0, q0, jnp.zeros_like(q0))  # over static\n"
+        "    rms = jnp.sqrt(jnp.mean(o['acceleration'][window] ** 2))\n"
+        "    return rms, jnp.sqrt(jnp.mean((load - 1.0) ** 2, axis=0)), jnp.min(load, axis=0)\n\n\n"
+        "def objective(log_k, weight, dlc_max):\n"
+        "    \"\"\"RMS acceleration, plus weight x the squared excess of any wheel's load coefficient over dlc_max.\"\"\"\n"
+        "    rms, dlc, least = ride(log_k)\n"
+        "    return rms + weight * jnp.sum(jnp.maximum(dlc / dlc_max - 1.0, 0.0) ** 2), (rms, dlc, least)\n\n\n"
+        "value_and_grad = jax.jit(jax.value_and_grad(objective, has_aux=True))\n"
+        "log_k0 = jnp.log(jnp.concatenate([iso_mech.spring_damping[1::2], iso_mech.spring_stiffness[0::2]]))\n"
+        "tic = time.perf_counter()\n"
+        "(_, (rms0, dlc0, least0)), grad = jax.block_until_ready(value_and_grad(log_k0, 0.0, 1.0))  # weight 0: RMS\n"
+        "print(f'RMS acceleration {float(rms0):.4f} m/s², dynamic load coefficients {np.round(np.asarray(dlc0), 4)}, '\n"
+        "      f'least loads / static {np.round(np.asarray(least0), 3)}; '\n"
+        "      f'value and gradient in {time.perf_counter() - tic:.1f} s (compile included)')\n"
+        "table(['corner', 'd RMS / d log(shock damping) [m/s²]', 'd RMS / d log(spring rate) [m/s²]'],\n"
+        "      [(c, f'{float(grad[i]):+.5f}', f'{float(grad[4 + i]):+.5f}') for i, c in enumerate(CORNERS)])"
+    ),
+    new_markdown_cell("A central difference of the same compiled function (new parameter values do not recompile) "
+                      "checks the front-left shock's component:"),
+    new_code_cell(
+        "h = 1e-3\n"
+        "e = jnp.zeros(8).at[0].set(h)\n"
+        "tic = time.perf_counter()\n"
+        "(up, _), _ = value_and_grad(log_k0 + e, 0.0, 1.0)\n"
+        "(down, _), _ = value_and_grad(log_k0 - e, 0.0, 1.0)\n"
+        "central = float(up - down) / (2 * h)\n"
+        "print(f'jax.grad {float(grad[0]):.8f}, central difference {central:.8f}: relative difference '\n"
+        "      f'{central / float(grad[0]) - 1:.1e}; {(time.perf_counter() - tic) / 2:.1f} s per evaluation')\n"
+        "assert abs(central / float(grad[0]) - 1) < 1e-3"
+    ),
+    new_markdown_cell(
+        "## Tuning the dampers\n\n"
+        "Softer dampers ride better but let the wheels' loads swing more. Adam on the log damping rates (springs "
+        "fixed) minimises the RMS acceleration with a quadratic penalty on any wheel's dynamic load coefficient "
+        "above the largest of the standard dampers' four: comfort gained without worse road holding on any wheel."
+    ),
+    new_code_cell(
+        "DLC_MAX, WEIGHT, STEPS = float(np.max(dlc0)), 100.0 * float(rms0), 15\n"
+        "opt = optax.adam(0.1)\n"
+        "x = log_k0[:4]\n"
+        "state = opt.init(x)\n"
+        "history = []\n"
+        "tic = time.perf_counter()\n"
+        "for _ in range(STEPS + 1):\n"
+        "    (value, (rms, dlc, least)), g = value_and_grad(jnp.concatenate([x, log_k0[4:]]), WEIGHT, DLC_MAX)\n"
+        "    history.append((float(value), float(rms), np.asarray(dlc), np.exp(np.asarray(x)), np.asarray(least)))\n"
+        "    updates, state = opt.update(g[:4], state)\n"
+        "    x = optax.apply_updates(x, updates)\n"
+        "print(f'{STEPS} Adam steps in {time.perf_counter() - tic:.1f} s')\n"
+        "fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.5))\n"
+        "a1.plot([h[0] for h in history], 'k', label='objective')\n"
+        "a1.plot([h[1] for h in history], label='RMS acceleration')\n"
+        "a1.set_xlabel('Adam step'); a1.set_ylabel('m/s²'); a1.legend()\n"
+        "a2.plot(np.array([h[2] for h in history]), label=CORNERS); a2.axhline(DLC_MAX, color='k', lw=0.8)\n"
+        "a2.set_xlabel('Adam step'); a2.set_ylabel('dynamic load coefficient'); a2.legend(ncol=4)\n"
+        "plt.tight_layout(); plt.show()\n"
+        "first, last = history[0], history[-1]\n"
+        "table(['', 'shock damping FL, FR, RL, RR [N s/m]', 'RMS acceleration [m/s²]', 'dynamic load coefficients',\n"
+        "       'least load / static'],\n"
+        "      [(name, ', '.join(f'{v:.0f}' for v in h[3]), f'{h[1]:.4f}', ', '.join(f'{v:.3f}' for v in h[2]),\n"
+        "        ', '.join(f'{v:.2f}' for v in h[4]))\n"
+        "       for name, h in (('standard', first), (f'after {STEPS} steps', last))])"
+    ),
+    new_markdown_cell(
+        "## Identifying the dampers\n\n"
+        "A rig run on the random road (3 s, the road fading in from rest) with the true damping rates is "
+        "measured at 500 Hz: chassis heave, pitch and roll, each with Gaussian noise of 1 % of its RMS. `fit_traces` "
+        "(Gauss–Newton in log rates, residuals and Jacobian by forward mode through the rollout) recovers the four "
+        "shock damping rates from a start 20–30 % off, with their standard errors from the noise. Each channel is "
+        "divided by its RMS, so that one noise level serves all three."
+    ),
+    new_code_cell(
+        "ts_id = np.linspace(0.0, 3.0, 1501)\n"
+        "params = {c: ('spring', f'shock {c}', 'damping') for c in CORNERS}\n"
+        "true = np.asarray(iso_mech.spring_damping[1::2])\n"
+        "clean = trace_model(iso_mech, q_rest, ts_id, params, lambda m, x: motion(m, x))\n"
+        "y = np.asarray(clean.outputs(jnp.asarray(true[None])))[0]  # (runs, samples, 3)\n"
+        "scale = np.sqrt(np.mean(y**2, axis=(0, 1)))\n"
+        "measured = y / scale + 0.01 * np.random.default_rng(0).standard_normal(y.shape)\n"
+        "tic = time.perf_counter()\n"
+        "model = trace_model(iso_mech, q_rest, ts_id, params, lambda m, x: motion(m, x) / scale)\n"
+        "fit = fit_traces(model, measured, true[None] * [1.3, 0.8, 1.2, 0.75], sigma=0.01)\n"
+        "t_fit = time.perf_counter() - tic\n"
+        "err = fit.p / true - 1\n"
+        "display(table(['shock', 'true [N s/m]', 'start', 'identified', 'error', 'σ (standard error)', 'error / σ'],\n"
+        "              [(c, f'{true[i]:.1f}', f'{true[i] * s:.0f}', f'{fit.p[i]:.1f}', f'{100 * err[i]:+.3f} %',\n"
+        "                f'{100 * fit.rel_std[i]:.3f} %', f'{err[i] / fit.rel_std[i]:+.2f}')\n"
+        "               for i, (c, s) in enumerate(zip(CORNERS, [1.3, 0.8, 1.2, 0.75]))]))\n"
+        "print(f'fit (compile included) {t_fit:.1f} s, {fit.evaluations} evaluations, RMS residual {fit.rms:.4f} '\n"
+        "      f'(noise 0.01)')\n"
+        "assert np.all(np.abs(err) <= 3 * fit.rel_std) and np.all(np.abs(err) <= 0.005)"
+    ),
+    new_code_cell("print(f'notebook: {time.perf_counter() - started:.0f} s')"),
+]
+
+
+def main() -> None:
+    nb = new_notebook(cells=CELLS)
+    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+    path = Path(__file__).resolve().parent / "vehicle_ride.ipynb"
+    nbformat.write(nb, path)
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
