@@ -46,3 +46,4 @@ def released_from_rest():
     """The factory ``released_from_rest(build, t_end, ts, *, rtol, atol) -> (mech, q0, sol)`` for module fixtures
     of models checked against an independent solution from rest."""
     return _released_from_rest
+
