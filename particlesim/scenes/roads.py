@@ -23,6 +23,20 @@ __all__ = ["Bump", "SineSum", "Sum", "iso8608", "ISO8608_CLASSES"]
 ISO8608_CLASSES = {"A": 16e-6, "B": 64e-6, "C": 256e-6, "D": 1024e-6, "E": 4096e-6}
 
 
+def _check(road: str, *, positive=(), **values) -> None:
+    """Refuse non-finite values (and non-positive ``positive`` ones), naming the road and the value; traced values
+    (a road built under ``jit``) are not checked."""
+    from jax.core import Tracer
+
+    for name, v in values.items():
+        if isinstance(v, Tracer):
+            continue
+        a = np.asarray(v)
+        if not np.all(np.isfinite(a)) or (name in positive and not np.all(a > 0)):
+            need = "finite and positive" if name in positive else "finite"
+            raise ValueError(f"{road}: {name} must be {need}, got {a.tolist()!r}")
+
+
 def _smoothstep(s):
     """0 before 0, 1 after 1, a raised cosine between (continuous slope)."""
     s = jnp.clip(s, 0.0, 1.0)
@@ -38,6 +52,7 @@ class Bump(eqx.Module):
 
     def __init__(self, height, start, duration):
         self.height, self.start, self.duration = (jnp.asarray(v, dtype=float) for v in (height, start, duration))
+        _check("Bump", height=self.height, start=self.start, duration=self.duration, positive=("duration",))
 
     def __call__(self, t):
         s = jnp.clip((t - self.start) / self.duration, 0.0, 1.0)
@@ -62,6 +77,12 @@ class SineSum(eqx.Module):
                                                        (amplitude, wavenumber, phase))
         self.speed, self.offset, self.start, self.fade = (jnp.asarray(v, dtype=float) for v in
                                                           (speed, offset, start, fade))
+        _check("SineSum", amplitude=self.amplitude, wavenumber=self.wavenumber, phase=self.phase, speed=self.speed,
+               offset=self.offset, start=self.start, fade=self.fade, positive=("fade",))
+        if self.amplitude.shape != self.wavenumber.shape or self.amplitude.shape != self.phase.shape \
+                or self.amplitude.ndim != 1:
+            raise ValueError(f"SineSum: amplitude, wavenumber and phase must be 1-d of one length, got shapes "
+                             f"{self.amplitude.shape}, {self.wavenumber.shape}, {self.phase.shape}")
 
     def __call__(self, t):
         x = self.speed * (t - self.start) - self.offset

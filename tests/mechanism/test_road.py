@@ -197,3 +197,15 @@ def test_a_short_bump_is_felt_with_a_bounded_step():
     for bad in (0.0, -1.0, float("nan"), "1"):
         with pytest.raises(ValueError, match="max_step must be a positive number"):
             simulate_mechanism(mech, q0, qd0, 0.0, 1.5, max_step=bad)
+
+
+def test_bad_roads_are_refused_by_name():
+    from particlesim.scenes.roads import Bump, SineSum, iso8608
+
+    for make, msg in [(lambda: Bump(0.05, 0.2, 0.0), "Bump: duration must be finite and positive"),
+                      (lambda: Bump(float("nan"), 0.2, 0.1), "Bump: height must be finite"),
+                      (lambda: SineSum([1.0, 2.0], [1.0], [0.0, 0.0], speed=10.0), "SineSum: amplitude, wavenumber"),
+                      (lambda: SineSum([1.0], [1.0], [0.0], speed=float("inf")), "SineSum: speed must be finite"),
+                      (lambda: iso8608("Z", 10.0, seed=0), "unknown ISO 8608 class 'Z'")]:
+        with pytest.raises(ValueError, match=msg):
+            make()
