@@ -43,13 +43,17 @@ RK4_TABLEAU = np.array([[0.0, 1 / 6], [0.5, 1 / 3], [0.5, 1 / 3], [1.0, 1 / 6]])
 
 
 def integrate_pos(m: mujoco.MjModel, qpos, qvel, dt):
-    """``qpos`` advanced by ``qvel`` over ``dt`` (MuJoCo's ``mj_integratePos`` for slide, hinge and ball joints)."""
+    """``qpos`` advanced by ``qvel`` over ``dt`` (MuJoCo's ``mj_integratePos`` for slide, hinge, ball and free
+    joints; rotations by their body-frame angular velocity)."""
     out = []
     for j in range(m.njnt):
         a, v, kind = int(m.jnt_qposadr[j]), int(m.jnt_dofadr[j]), int(m.jnt_type[j])
         if kind in (int(mujoco.mjtJoint.mjJNT_SLIDE), int(mujoco.mjtJoint.mjJNT_HINGE)):
             out.append(qpos[a:a + 1] + dt * qvel[v:v + 1])
-        elif kind == int(mujoco.mjtJoint.mjJNT_BALL):
+        elif kind in (int(mujoco.mjtJoint.mjJNT_BALL), int(mujoco.mjtJoint.mjJNT_FREE)):
+            if kind == int(mujoco.mjtJoint.mjJNT_FREE):  # world-frame translation, then the ball part
+                out.append(qpos[a:a + 3] + dt * qvel[v:v + 3])
+                a, v = a + 3, v + 3
             q, w = qpos[a:a + 4], qvel[v:v + 3]
             nw = jnp.sqrt(w @ w)
             axis = w / jnp.where(nw > 0, nw, 1.0)
@@ -60,7 +64,7 @@ def integrate_pos(m: mujoco.MjModel, qpos, qvel, dt):
                            w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1, w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1])
             out.append(r / jnp.sqrt(r @ r))
         else:
-            raise NotImplementedError(f"joint {j}: type {kind} (only slide, hinge and ball are supported)")
+            raise NotImplementedError(f"joint {j}: type {kind} (only slide, hinge, ball and free are supported)")
     return jnp.concatenate(out)
 
 
@@ -87,8 +91,9 @@ def rk4_step(m: mujoco.MjModel, forward: Callable) -> Callable:
 
 def rk4_rollout(m: mujoco.MjModel, n_save: int, forward: Callable, observe: Callable) -> Callable:
     """Jitted ``fn(mx, d0, per)``: ``(n_save - 1) * per`` RK4 steps (:func:`rk4_step`), returning
-    ``observe(mx, d)`` every ``per`` steps, the first at ``d0``, stacked to ``(n_save, ...)``. The MJX model is an
-    argument and ``per`` is traced, so another step size (another ``mjx.put_model``) does not recompile."""
+    ``observe(mx, d)`` (an array or a pytree of them) every ``per`` steps, the first at ``d0``, stacked to
+    ``(n_save, ...)``. The MJX model is an argument and ``per`` is traced, so another step size (another
+    ``mjx.put_model``) does not recompile."""
     step = rk4_step(m, forward)
 
     def fn(mx, d, per):
@@ -98,7 +103,7 @@ def rk4_rollout(m: mujoco.MjModel, n_save: int, forward: Callable, observe: Call
 
         with jax.numpy_rank_promotion("allow"):
             rest = jax.lax.scan(outer, d, None, length=n_save - 1)[1]
-            return jnp.concatenate([observe(mx, d)[None], rest])
+            return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), observe(mx, d), rest)
 
     return jax.jit(fn)
 

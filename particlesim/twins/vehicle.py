@@ -20,6 +20,11 @@ its springs' and tyres' parameters), so that it follows ``with_params`` and any 
   entering the damping as in :func:`particlesim.mechanism.forces.point_forces` (gap ``z - ground - radius - h(t)``,
   rate ``v_z - h'(t)``).
 
+The MJX twin (:func:`mjx_twin_rollout`) is the same model run by MJX: the RK4 loop of :mod:`.mjx` around MJX's
+forward stages, the tyres' law (and their roads, the road Modules themselves, their rates by ``jax.jvp``) evaluated
+in JAX at every stage before MJX's velocity stage. MJX 3.17 omits the ``J̇ v`` term of ``connect`` rows (docs/twins.md),
+so its ball joints sit further open than MuJoCo C's at the same step.
+
 Not represented (refused by name): any other road (a Python function, a road of the point ``ground(t, p)``), a
 tyre force applied away from its measuring point, applied loads, drivers, any force element other than
 spring-dampers and tyres (rotational springs, and any later kind), bodies other than the chassis and the three per
@@ -37,7 +42,8 @@ from mujoco import rollout as mj_rollout
 
 from . import callbacks
 
-__all__ = ["twin_xml", "twin_model", "install_callback", "twin_rollout", "attitude", "corners", "solref_tc"]
+__all__ = ["twin_xml", "twin_model", "install_callback", "twin_rollout", "mjx_twin_rollout", "attitude", "corners",
+           "solref_tc"]
 
 _NAMED = {"particle_names", "body_names", "point_names", "spring_names", "tyre_names"}  # what the twin represents
 _SOLIMP = "0.9999 0.9999 0.001 0.5 2"
@@ -297,3 +303,64 @@ def _connect_residual(m: mujoco.MjModel, d: mujoco.MjData, e: int) -> float:
     p1 = d.xpos[b1] + d.xmat[b1].reshape(3, 3) @ m.eq_data[e, 0:3]
     p2 = d.xpos[b2] + d.xmat[b2].reshape(3, 3) @ m.eq_data[e, 3:6]
     return float(np.linalg.norm(p1 - p2))
+
+
+def mjx_twin_rollout(mech, q0, t_end: float, timestep: float = 5e-4, *, save_dt: float = 0.01,
+                     tc: float | None = None) -> dict[str, np.ndarray]:
+    """:func:`twin_rollout` run by MJX instead of MuJoCo C (same model, same RK4 tableau, same outputs): released
+    from rest at ``q0`` at ``t = 0``, the tyres (and roads) evaluated in JAX at every RK4 stage. Compiled per call
+    (one step size per comparison; MJX's compile dominates)."""
+    import jax
+    import jax.numpy as jnp
+    from mujoco import mjx
+
+    from . import mjx as rk4
+
+    per, n_save = (int(round(x)) for x in (save_dt / timestep, t_end / save_dt))
+    if abs(per * timestep - save_dt) > 1e-9 * save_dt or abs(n_save * save_dt - t_end) > 1e-9 * t_end:
+        raise ValueError(f"save_dt {save_dt} must be a multiple of timestep {timestep} and divide t_end {t_end}")
+    m = twin_model(mech, q0, timestep, tc)
+    cs = corners(mech)
+    name = lambda kind, n: mujoco.mj_name2id(m, kind, n)  # noqa: E731
+    sites = [name(mujoco.mjtObj.mjOBJ_SITE, mech.topo.point_names[k]) for k in mech.topo.tyre_points]
+    bodies = [int(m.site_bodyid[s]) for s in sites]
+    normal = jnp.asarray(mech.topo.tyre_normals, float)
+    level = jnp.asarray(mech.tyre_ground) + jnp.asarray(mech.tyre_radius)
+    stiffness, damping = jnp.asarray(mech.tyre_stiffness), jnp.asarray(mech.tyre_damping)
+    roads = _roads(mech)
+
+    def road(t):
+        """Heights and rates of the roads under the tyres at ``t`` (zeros for the plane)."""
+        one = lambda fn: jax.jvp(fn, (t,), (jnp.ones_like(t),)) if fn is not None else (0.0 * t, 0.0 * t)  # noqa
+        h, rate = zip(*(one(fn) for fn in roads))
+        return jnp.stack(h), jnp.stack(rate)
+
+    def forward(mx, d):
+        d = mjx.fwd_position(mx, d)
+        h, h_rate = road(d.time)
+        jn = jnp.stack([mjx.jac(mx, d, d.site_xpos[s], b)[0] @ normal[i] for i, (s, b) in enumerate(zip(sites, bodies))])
+        gap = jnp.stack([d.site_xpos[s] @ normal[i] for i, s in enumerate(sites)]) - level - h
+        f = jnp.where(gap < 0.0, -(stiffness * gap + damping * (jn @ d.qvel - h_rate)), 0.0)
+        d = d.replace(qfrc_applied=jn.T @ f)
+        d = mjx.fwd_velocity(mx, d)
+        d = mjx.fwd_actuation(mx, d)
+        d = mjx.fwd_acceleration(mx, d)
+        return mjx.solve(mx, d)
+
+    chassis = name(mujoco.mjtObj.mjOBJ_BODY, "chassis")
+    balls = [rk4.connect_residual(m, name(mujoco.mjtObj.mjOBJ_EQUALITY, f"upper ball {c}")) for c in cs]
+    rod_sites = [(name(mujoco.mjtObj.mjOBJ_SITE, f"tie rod {c} upright"), name(mujoco.mjtObj.mjOBJ_SITE,
+                                                                             f"tie rod {c} chassis")) for c in cs]
+    rod_length0 = jnp.asarray([m.tendon_length0[name(mujoco.mjtObj.mjOBJ_TENDON, f"tie rod {c}")] for c in cs])
+
+    def observe(mx, d):
+        k = mjx.kinematics(mx, d)
+        rods = jnp.stack([jnp.linalg.norm(k.site_xpos[a] - k.site_xpos[b]) for a, b in rod_sites])
+        return {"heave": k.xipos[chassis, 2], "rot": k.xmat[chassis], "ball": jnp.stack([f(k) for f in balls]),
+                "tie_rod": jnp.abs(rods - rod_length0)}
+
+    mx = mjx.put_model(m)
+    out = jax.device_get(rk4.rk4_rollout(m, n_save + 1, forward, observe)(mx, rk4._start(m, mx), per))
+    pitch, roll = attitude(out["rot"], out["rot"][0])
+    return {"t": per * timestep * np.arange(n_save + 1), "heave": np.asarray(out["heave"]), "pitch": pitch,
+            "roll": roll, "ball": np.asarray(out["ball"]), "tie_rod": np.asarray(out["tie_rod"])}
