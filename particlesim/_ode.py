@@ -491,6 +491,10 @@ def _raise_failed(x, result, hint: str = ""):
 EVENT_TOL = 1e-13
 #: Switches located within this time of each other [s] (plus this fraction of the time) flip together.
 SIMULTANEOUS = 1e3 * EVENT_TOL
+#: A switching surface starting a segment below this (relative to 1 + the largest surface value, in the surfaces'
+#: units: metres of gap for tyres and bump stops) starts at it instead (:func:`integrate_events`): far above
+#: rounding, far below any gap that matters (it shifts that element's next crossing by this over its rate).
+SURFACE_MARGIN = 1e3 * float(np.finfo(np.float64).eps)
 
 
 class _EventBisection(optx.Bisection):
@@ -531,14 +535,15 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
     # crossing in one step a vector of functions has no common root. Bisection keeps the root inside the step
     # and halves the bracket to EVENT_TOL.
     root = _EventBisection(rtol=EVENT_TOL, atol=EVENT_TOL, flip=True)
-    # args = (args, modes, lift): each surface is measured from its value at the segment's start when that is
-    # below zero (``lift``), so that all start at or above zero: an element just switched starts at its root, and
-    # the projection after an event may leave it a rounding error across. The least representable positive number
-    # added keeps the start strictly positive: a start at zero would hide the next crossing of any other element
-    # within the first step (a crossing is a change from positive to not positive).
+    # args = (args, modes, lift): a surface that starts the segment below SURFACE_MARGIN (an element just switched
+    # starts at its root, and the projection after an event may leave it a rounding error across) is measured from
+    # that start, lifted to SURFACE_MARGIN; the others are not moved. The start must be strictly positive (a start
+    # at zero would hide the next crossing of any other element within the first step), and by more than rounding:
+    # diffrax evaluates the condition again inside its loop, where the surfaces may round differently, and a
+    # start lifted to exactly zero then read as crossed on the first step, rejected or not (a car whose two front
+    # wheels left the road together: an event at the end of a rejected 10 ms step, its saves interpolated from it).
     def condition(t, y, args, **kw):
-        value = jnp.min(surfaces(t, y, args[0], args[1]) + args[2])
-        return value + jnp.finfo(value.dtype).tiny
+        return jnp.min(surfaces(t, y, args[0], args[1]) + args[2])
 
     event = diffrax.Event(condition, root_finder=root, direction=False)
     term = diffrax.ODETerm(field)
@@ -547,7 +552,9 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
         t_s, y_s, modes, acc, steps, rejected, failed, n_ev, ev_t, ev_el, ev_on = carry
         # after a failed segment the rest are empty (start at t1), as after the last one of a run that finished
         t_s = jnp.where(failed == diffrax.RESULTS.successful, t_s, t1)
-        lift = jax.lax.stop_gradient(jnp.maximum(-surfaces(t_s, y_s, args, modes), 0.0))
+        s_0 = jax.lax.stop_gradient(surfaces(t_s, y_s, args, modes))
+        margin = SURFACE_MARGIN * (1.0 + jnp.max(jnp.abs(s_0), initial=0.0))
+        lift = jnp.where(s_0 < margin, margin - s_0, 0.0)
         sol = diffrax.diffeqsolve(
             term, solver, t0=t_s, t1=t1, dt0=dt0, y0=y_s, args=(args, modes, lift),
             saveat=diffrax.SaveAt(subs=[diffrax.SubSaveAt(ts=jnp.clip(save, t_s, t1)), diffrax.SubSaveAt(t1=True)]),
