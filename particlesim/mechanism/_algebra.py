@@ -127,10 +127,12 @@ class Prepared(eqx.Module):
     drv_adk: Float[Array, "2D K"] | None = None  # d @ minv @ drv_d^T
     drv_blk: Float[Array, "L K 3"] | None = None  # jw_lin contracted with drv_d
     turn: tuple | None = eqx.field(static=True, default=None)  # turned dot rows (planar lines on rods), or None
+    split: object = None  # the hub split's constants (:class:`~.sparse.SplitConstants`) when the topology has one
 
 
-def prepare(mech: Mechanism) -> Prepared:
-    """The parameter-only quantities of :class:`Prepared` (differentiable in the parameters)."""
+def prepare(mech: Mechanism, split: bool = False) -> Prepared:
+    """The parameter-only quantities of :class:`Prepared` (differentiable in the parameters); ``split``: with the
+    constants of the hub split (:mod:`.sparse`), when the topology has one."""
     topo = mech.topo
     free = np.asarray(topo.free, dtype=int)
     w = point_weights(mech)
@@ -172,9 +174,14 @@ def prepare(mech: Mechanism) -> Prepared:
         drv_dw = base["drv_d"] @ minv
         base.update(drv_minv_dt=drv_dw.T, drv_akk=drv_dw @ base["drv_d"].T, drv_adk=dw @ base["drv_d"].T,
                     drv_blk=jnp.einsum("lfk,qf->lqk", jw_lin, base["drv_d"]))
-    return Prepared(**base, minv=minv, minv_qg=minv @ qg, minv_dt=dw.T, a=dw @ d.T, jw_lin=jw_lin,
-                    b_lin=jnp.einsum("if,lfk->ilk", d, jw_lin), s_lin=jnp.einsum("lfk,mfk->lm", j_lin, jw_lin),
-                    mwk=minv @ wk.T)
+    out = Prepared(**base, minv=minv, minv_qg=minv @ qg, minv_dt=dw.T, a=dw @ d.T, jw_lin=jw_lin,
+                   b_lin=jnp.einsum("if,lfk->ilk", d, jw_lin), s_lin=jnp.einsum("lfk,mfk->lm", j_lin, jw_lin),
+                   mwk=minv @ wk.T)
+    if split and topo.sparse is not None:
+        from .sparse import prepare_split
+
+        out = eqx.tree_at(lambda p: p.split, out, prepare_split(topo.sparse, out), is_leaf=lambda x: x is None)
+    return out
 
 
 class Drive(eqx.Module):

@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import ModelError
 from ..inertia import RigidInertia
 from ..particles import check_placement, equivalent_particles
+from . import sparse
 from .joints import AXES, unit
 from .model import AppliedForce, AppliedTorque, BodyLoad, DotRows, DriveRows, LinearRows, Mechanism, Topology
 
@@ -105,6 +106,9 @@ class _Build:
         lsq = _check(self, mech, q0, dof, multipliers)
         if lsq:
             mech = dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, least_squares=True))
+        plan = sparse.candidate(mech.topo)
+        if sparse.validate(plan, self.jacobian0, len(mech.topo.dot), len(mech.topo.linear), RANK_RTOL):
+            mech = dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, sparse=plan))
         return mech, q0
 
     def assemble(self, mech: Mechanism, q0: np.ndarray, hold) -> np.ndarray:
@@ -530,6 +534,7 @@ def _check(bd: _Build, mech: Mechanism, q0: np.ndarray, dof: Optional[int], mult
     size = max(float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0, 1e-12)
     wk = _np_point_weights(bd, topo)
     res, j = _np_rows(topo, np.asarray(mech.dot_kappa), pts, wk, np.asarray(mech.drive_offset))
+    bd.jacobian0 = j
     labels = topo.row_labels()
     bad = [(labels[i], float(res[i])) for i in np.flatnonzero(np.abs(res) > ASSEMBLY_RTOL * size * max(size, 1.0))]
     if bad:

@@ -35,6 +35,7 @@ from ._algebra import LSQ_REFINE, LSQ_RTOL
 from ._algebra import lumped_masses, mass_matrix, scalar_mass_matrix
 from .forces import generalized_point_forces, point_force_terms, potential_energy, torque_forces
 from .model import AppliedForce, Mechanism
+from .sparse import solve_sparse
 from .._jit import compiled
 
 __all__ = ["Prepared", "prepare", "mass_properties", "mass_matrix", "scalar_mass_matrix", "lumped_masses",
@@ -70,7 +71,9 @@ def _forces(mech: Mechanism, prep: Prepared, t, q, qd, contact=None):
     return terms, torque_forces(mech, t, q, qd)
 
 
-def _solve(mech: Mechanism, prep: Prepared, t, q, qd, baumgarte: float, contact=None):
+def _solve(mech: Mechanism, prep: Prepared, t, q, qd, baumgarte: float, contact=None, split: bool = False):
+    """``(qdd, lam)``; ``split``: by the hub split of :mod:`.sparse` (``mech.topo.sparse``) instead of the dense
+    Schur complement."""
     r = rows(prep, q, qd, drive_at(mech, t))
     g = gamma(prep, r)
     if baumgarte:
@@ -86,6 +89,9 @@ def _solve(mech: Mechanism, prep: Prepared, t, q, qd, baumgarte: float, contact=
         minv_q = minv_q + prep.minv @ q_torque.reshape(-1, 3)
     if g.shape[0] == 0:
         return minv_q.reshape(-1), g
+    if split:
+        qdd, lam = solve_sparse(mech.topo.sparse, prep, r, g, minv_q)
+        return qdd.reshape(-1), lam
     if mech.topo.least_squares:
         lam = solve_schur(factor_schur(schur(prep, r), True), apply_j(prep, r, minv_q) - g)
     else:

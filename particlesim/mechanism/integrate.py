@@ -218,9 +218,10 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
                                   physical_checks(mech) if check_physical else None)
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate_mechanism", "(q0, qd0)")
     plan = chain_plan(mech) if solve == "chain" else None
+    split = solve == "sparse"
     # The chain path needs only the bodies' mass blocks; the dense path its prepared constants (Prepared).
     cblocks = chain_mass_blocks(mech) if plan is not None else None
-    prep = prepare(mech) if plan is None else None
+    prep = prepare(mech, split) if plan is None else None
     # The mechanism and its prepared quantities reach diffrax through ``args`` (so every adjoint differentiates
     # them) as a flat list of array leaves; the rest is rebuilt from the static structure inside.
     leaves, treedef = jax.tree.flatten((mech, prep, cblocks))
@@ -237,7 +238,7 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
         q, qd = y
         if plan is not None:
             return qd, chain_accelerations(m, plan, t, q, qd, mass_blocks=cb)
-        return qd, _solve(m, p, t, q, qd, baumgarte)[0]
+        return qd, _solve(m, p, t, q, qd, baumgarte, split=split)[0]
 
     def projection(t, y, args, passes=BETWEEN_STEPS):
         m, p, cb = unpack(args)
@@ -259,7 +260,7 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
         def field_modes(t, y, args):
             m, p, cb = unpack(args[0])
             q, qd = y
-            return qd, _solve(m, p, t, q, qd, baumgarte, contact=args[1] > 0.5)[0]
+            return qd, _solve(m, p, t, q, qd, baumgarte, contact=args[1] > 0.5, split=split)[0]
 
         def surfaces(t, y, args, modes):
             m, p, _ = unpack(args)
@@ -337,8 +338,10 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
 
     ``stabilise`` projects after every step (module docstring); ``baumgarte`` optionally adds Baumgarte terms
     instead of (or besides) it. Solver names as in :data:`particlesim.simulate.SOLVERS`. ``solve``: "dense" (any
-    mechanism; one Cholesky factorisation of the ``C x C`` constraint system per evaluation) or "chain" (the O(N)
-    tip-to-base recursion of :mod:`.chain`, for uniform serial chains). ``adjoint``: a name in :data:`ADJOINTS`
+    mechanism; one Cholesky factorisation of the ``C x C`` constraint system per evaluation), "chain" (the O(N)
+    tip-to-base recursion of :mod:`.chain`, for uniform serial chains) or "sparse" (the groups hanging from a hub
+    body, e.g. a vehicle's corners from its chassis, eliminated apart: :mod:`.sparse`; where ``mech.topo.sparse``
+    holds a plan). Projections between steps use the dense solve on every path but "chain". ``adjoint``: a name in :data:`ADJOINTS`
     or a diffrax adjoint; ``None`` is "checkpoint". "backsolve" requires ``stabilise=False`` (module docstring).
     ``pid``: ``(pcoeff, icoeff, dcoeff)`` of the step-size controller, as in :func:`particlesim.simulate.simulate`
     (defaults (0, 1, 0) explicit, integral control; (0.3, 0.3, 0) implicit). A scene whose step is bounded by
@@ -378,14 +381,19 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
             "equations of the unprojected vector field backwards in time and cannot see the coordinate projection "
             "applied after every step, so its gradients would belong to a different flow. Use 'checkpoint', "
             "'direct' or 'forward', or stabilise=False (then with Baumgarte terms if drift matters)")
-    if solve not in ("dense", "chain"):
-        raise ValueError(f"unknown solve {solve!r}; choose 'dense' or 'chain'")
+    if solve not in ("dense", "chain", "sparse"):
+        raise ValueError(f"unknown solve {solve!r}; choose 'dense', 'chain' or 'sparse'")
+    if solve == "sparse" and mech.topo.sparse is None:
+        raise ValueError("solve='sparse' needs a hub body whose removal splits the mechanism into groups that are "
+                         "cheaper to solve apart (particlesim.mechanism.sparse); this mechanism has none (no body "
+                         "splits it, a body shares a particle with the hub, a group's rows are dependent with the hub "
+                         "held still, or its multipliers are least-squares): use solve='dense'")
     if isinstance(max_events, bool) or not isinstance(max_events, (int, np.integer)) or max_events < 1:
         raise ValueError(f"max_events must be a positive integer, got {max_events!r}")
     switching = bool(mech.topo.tyre_names or mech.topo.bump_names)
     evented = bool(events) and switching
     if evented and (solve == "chain" or isinstance(cfg.adjoint, diffrax.BacksolveAdjoint)):
-        raise ValueError("events=True needs solve='dense' and a discrete adjoint ('checkpoint', 'direct', "
+        raise ValueError("events=True needs solve='dense' or 'sparse' and a discrete adjoint ('checkpoint', 'direct', "
                          "'forward'): 'backsolve' would integrate backwards across the located switches")
     if solve == "chain":
         if baumgarte:

@@ -176,6 +176,7 @@ class Topology:
     bump_names: tuple[str, ...] = ()  # bump stops: one-sided springs between two points
     bump_points: tuple[tuple[int, int], ...] = ()
     bump_rebound: tuple[bool, ...] = ()  # False: engages in compression (shorter), True: in extension (longer)
+    sparse: object = None  # the hub split of :mod:`.sparse` (a ``SparsePlan``), when one pays and holds at assembly
 
     def _key(self) -> tuple:
         return tuple(getattr(self, f.name) for f in dataclasses.fields(self))
