@@ -7,7 +7,7 @@ JOBS   ?= 2
 STAMP  := $(VENV)/.installed-stamp
 BENCH_STAMP := $(VENV)/.bench-stamp
 
-.PHONY: run test test-xla-defaults bench clean
+.PHONY: run test test-xla-defaults bench notebooks clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -40,6 +40,10 @@ $(BENCH_STAMP): $(STAMP)
 ## bench: rerun the benchmarks, rewrite benchmarks/results/ and the tables of benchmarks/README.md
 bench: $(BENCH_STAMP)
 	$(PY) -m benchmarks.run_all
+
+## notebooks: rebuild the notebooks from notebooks/build_*.py and execute them in place, saving their outputs
+notebooks: $(STAMP)
+	$(PY) notebooks/run.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -1,4 +1,5 @@
-"""Build ``identify_arm.ipynb`` (outputs cleared): ``python notebooks/build_identify_arm.py``."""
+"""Write ``notebooks/identify_arm.ipynb`` without outputs; ``make notebooks`` (``notebooks/run.py``) rebuilds and executes
+it in place, saving its outputs."""
 
 from pathlib import Path
 
@@ -11,14 +12,14 @@ cells = [
         "For speed the training run is subsampled (every 3rd row) and one LM start is used; "
         "`python -m particlesim.reports.identify_arm` runs the full version."),
     nbformat.v4.new_code_cell(
-        "import tempfile\nfrom pathlib import Path\nimport matplotlib.pyplot as plt\n"
+        "import tempfile\nfrom pathlib import Path\n"
         "from particlesim.reports.identify_arm import identify_arm\n"
         "out = Path(tempfile.mkdtemp())\nres = identify_arm(out, step=3, starts=1, max_steps=1000, verbose=False)"),
     nbformat.v4.new_code_cell(
         "from IPython.display import Markdown\nMarkdown((out / 'identify_arm.md').read_text())"),
     nbformat.v4.new_markdown_cell("Measured vs predicted test torque per joint (black: measured, grey: URDF, red: ours)."),
     nbformat.v4.new_code_cell(
-        "img = plt.imread(out / 'identify_arm.png')\nplt.figure(figsize=(11, 14)); plt.imshow(img); plt.axis('off');"),
+        "from IPython.display import Image\nImage(filename=str(out / 'identify_arm.png'))  # the report's figure"),
     nbformat.v4.new_code_cell(
         "print('pseudo-inertia min eigenvalues:', res['pseudo_inertia_min_eig'])\n"
         "print('check_inertia passed:', res['check_inertia_passed'])\n"

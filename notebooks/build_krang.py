@@ -1,4 +1,5 @@
-"""Write ``notebooks/krang.ipynb`` (outputs cleared). Run: ``python notebooks/build_krang.py``."""
+"""Write ``notebooks/krang.ipynb`` without outputs; ``make notebooks`` (``notebooks/run.py``) rebuilds and executes
+it in place, saving its outputs."""
 
 from pathlib import Path
 

@@ -1,4 +1,5 @@
-"""Write ``notebooks/quarter_car.ipynb`` (outputs cleared). Run: ``python notebooks/build_quarter_car.py``."""
+"""Write ``notebooks/quarter_car.ipynb`` without outputs; ``make notebooks`` (``notebooks/run.py``) rebuilds and executes
+it in place, saving its outputs."""
 
 from pathlib import Path
 

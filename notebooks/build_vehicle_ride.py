@@ -1,5 +1,5 @@
-"""Write ``notebooks/vehicle_ride.ipynb`` (outputs cleared). Run: ``python notebooks/build_vehicle_ride.py``, then
-execute it in place to save its outputs (``tests/test_notebooks.py`` executes it in CI)."""
+"""Write ``notebooks/vehicle_ride.ipynb`` without outputs; ``make notebooks`` (``notebooks/run.py``) rebuilds and executes
+it in place, saving its outputs."""
 
 from pathlib import Path
 
