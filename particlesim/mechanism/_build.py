@@ -106,8 +106,8 @@ class _Build:
         lsq = _check(self, mech, q0, dof, multipliers)
         if lsq:
             mech = dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, least_squares=True))
-        plan = sparse.candidate(mech.topo)
-        if sparse.validate(plan, self.jacobian0, len(mech.topo.dot), len(mech.topo.linear), RANK_RTOL):
+        plan = sparse.choose(mech.topo, self.jacobian0, RANK_RTOL)
+        if plan is not None:
             mech = dataclasses.replace(mech, topo=dataclasses.replace(mech.topo, sparse=plan))
         return mech, q0
 

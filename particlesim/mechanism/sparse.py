@@ -45,7 +45,7 @@ from ._algebra import _partner
 if TYPE_CHECKING:
     from ._algebra import Rows
 
-__all__ = ["SparsePlan", "SplitConstants", "candidate", "validate", "prepare_split", "solve_sparse"]
+__all__ = ["SparsePlan", "SplitConstants", "candidates", "choose", "validate", "prepare_split", "solve_sparse"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +73,7 @@ class SparsePlan:
     hub_lin: tuple[int, ...]
     hub_drv: tuple[int, ...]
     buckets: tuple[Bucket, ...]
+    coupled: bool = False  # a body holds particles of the hub and of a group (a joint particle they share)
 
     @property
     def n_groups(self) -> int:
@@ -123,24 +124,21 @@ def _cost(groups, hub_size) -> float:
     return sum((3 * len(p) + len(r)) ** 3 for p, r in groups) + (3 * hub_size) ** 3
 
 
-def candidate(topo: Topology) -> SparsePlan | None:
-    """The cheapest hub split of ``topo`` (by :func:`_cost`), or None: no body splits the mechanism into groups
-    that pay, or a mechanism the plan does not cover (singular mass matrix, least-squares multipliers)."""
+def candidates(topo: Topology) -> list[SparsePlan]:
+    """The hub splits of ``topo`` that at least halve the work of the dense solve (by :func:`_cost`), cheapest
+    first; none for a mechanism the plan does not cover (singular mass matrix, least-squares multipliers)."""
     if topo.saddle_point or topo.least_squares or not topo.free:
-        return None
+        return []
     col = topo.free_column()
     rows = _row_columns(topo)
     body_cols = [frozenset(int(c) for c in col[list(ps)] if c >= 0) for ps in topo.body_particles]
     n_free = len(topo.free)
     dense = float((3 * n_free + len(rows)) ** 3)
-    best, best_cost = None, 0.5 * dense  # a plan must at least halve the work to be worth its bookkeeping
+    found = []
     for h, hub in enumerate(body_cols):
         if not hub:
             continue
         rest = [c for c in range(n_free) if c not in hub]
-        # a body sharing a particle with the hub couples it through M: no plan with this hub
-        if any(b & hub and b - hub for b in body_cols):
-            continue
         comps = _components(rest, [r[2] for r in rows] + list(body_cols))
         if not comps:
             continue
@@ -151,12 +149,12 @@ def candidate(topo: Topology) -> SparsePlan | None:
             gs = {where[c] for c in cols - hub}
             (grouped[gs.pop()] if gs else hub_rows).append((kind, i))
         cost = _cost([(p, r) for p, r in zip(comps, grouped)], len(hub))
-        if cost < best_cost:
-            best_cost, best = cost, (h, sorted(hub), comps, grouped, hub_rows)
-    if best is None:
-        return None
-    h, hub, comps, grouped, hub_rows = best
+        if cost < 0.5 * dense:  # a plan must at least halve the work to be worth its bookkeeping
+            found.append((cost, h, sorted(hub), comps, grouped, hub_rows))
+    return [_plan(topo, body_cols, *f[1:]) for f in sorted(found, key=lambda f: f[0])]
 
+
+def _plan(topo, body_cols, h, hub, comps, grouped, hub_rows) -> SparsePlan:
     def kinds(rs):
         return tuple(tuple(i for k, i in rs if k == kind) for kind in ("dot", "lin", "drv"))
 
@@ -165,7 +163,13 @@ def candidate(topo: Topology) -> SparsePlan | None:
         dot, lin, drv = kinds(rs)
         shapes.setdefault((len(parts), len(dot), len(lin), len(drv)), []).append((tuple(parts), dot, lin, drv))
     buckets = tuple(Bucket(*(tuple(g[k] for g in gs) for k in range(4))) for gs in shapes.values())
-    return SparsePlan(topo.body_names[h], tuple(hub), *kinds(hub_rows), buckets)
+    coupled = any(b & set(hub) and b - set(hub) for b in body_cols)
+    return SparsePlan(topo.body_names[h], tuple(hub), *kinds(hub_rows), buckets, coupled)
+
+
+def choose(topo: Topology, j: np.ndarray, rank_rtol: float) -> SparsePlan | None:
+    """The cheapest of :func:`candidates` that :func:`validate` accepts at the assembly Jacobian ``j``."""
+    return next((p for p in candidates(topo) if validate(p, j, len(topo.dot), len(topo.linear), rank_rtol)), None)
 
 
 def validate(plan: SparsePlan | None, j: np.ndarray, n_dot: int, n_lin: int, rank_rtol: float) -> bool:
@@ -198,6 +202,8 @@ class SplitConstants(eqx.Module):
     lin: tuple
     drv: tuple
     minv: tuple
+    mgh: tuple  # per bucket M_g^-1 M_gh (G, P, H): the groups' mass coupling to the hub (zeros if uncoupled)
+    mhh: tuple  # per bucket sum over its groups of M_hg M_g^-1 M_gh (H, H)
     hub_dv: jax.Array
     hub_du: jax.Array
     hub_lin: jax.Array
@@ -216,15 +222,25 @@ def prepare_split(plan: SparsePlan, prep) -> SplitConstants:
         return (sc * prep.d[dot[..., None], cols[..., None, :]], sc * prep.d[n + dot[..., None], cols[..., None, :]],
                 prep.j_lin[lin[..., None], cols[..., None, :]], drv_d[drv[..., None], cols[..., None, :]])
 
-    dv, du, lin, drv, minv = [], [], [], [], []
+    dv, du, lin, drv, minv, mgh, mhh = [], [], [], [], [], [], []
     for b in plan.buckets:
         parts, dot, lin_, drv_ = b.arrays()
         cols = np.concatenate([parts, np.broadcast_to(hub, (len(parts), len(hub)))], axis=1)
         for out, x in zip((dv, du, lin, drv), restrict(dot, lin_, drv_, cols)):
             out.append(x)
-        minv.append(prep.minv[parts[:, :, None], parts[:, None, :]])
+        if plan.coupled:  # the group's own mass block, inverted (not a block of the whole inverse)
+            m_gg = prep.ms[parts[:, :, None], parts[:, None, :]]
+            m_gh = prep.ms[parts[:, :, None], hub[None, None, :]]
+            minv_g = jnp.linalg.inv(m_gg)
+            minv.append(0.5 * (minv_g + jnp.swapaxes(minv_g, 1, 2)))
+            mgh.append(minv[-1] @ m_gh)
+            mhh.append(jnp.einsum("gph,gpk->hk", m_gh, mgh[-1]))
+        else:  # M is block diagonal: the group's block of M^-1 is its block's inverse
+            minv.append(prep.minv[parts[:, :, None], parts[:, None, :]])
+            mgh.append(None)
+            mhh.append(None)
     h = restrict(*(np.asarray(x, dtype=int) for x in (plan.hub_dot, plan.hub_lin, plan.hub_drv)), hub)
-    return SplitConstants(tuple(dv), tuple(du), tuple(lin), tuple(drv), tuple(minv), *h,
+    return SplitConstants(tuple(dv), tuple(du), tuple(lin), tuple(drv), tuple(minv), tuple(mgh), tuple(mhh), *h,
                           ms_hub=prep.ms[np.ix_(hub, hub)])
 
 
@@ -264,26 +280,39 @@ def solve_sparse(plan: SparsePlan, prep, r: Rows, g: jax.Array, minv_q: jax.Arra
     e = _partner(r.vu, prep.turn)
     n_drv = r.drive.n if r.drive is not None else jnp.zeros((0, 3), e.dtype)
     m_eff = jnp.kron(sc.ms_hub, jnp.eye(3, dtype=e.dtype))
-    q_eff = (sc.ms_hub @ minv_q[hub]).reshape(-1)  # Q_h = M_h (M^-1 Q)_h: M has no group-hub block
+    if plan.coupled:  # the forces themselves: Q = M (M^-1 Q)
+        q_all = prep.ms @ minv_q
+        q_eff = q_all[hub].reshape(-1)
+    else:  # Q_h = M_h (M^-1 Q)_h, and (M^-1 Q)_g is the groups' own: M has no group-hub block
+        q_eff = (sc.ms_hub @ minv_q[hub]).reshape(-1)
+    eye3 = jnp.eye(3, dtype=e.dtype)
     eliminated = []
     for k, (b, rws) in enumerate(zip(plan.buckets, rows)):
         parts, dot, _, drv = b.arrays()
         p = parts.shape[1]
 
-        def group(dv, du, lin, drv_c, minv_g, ev, eu, nd, y, gr):
+        def group(dv, du, lin, drv_c, minv_g, mgh, ev, eu, nd, y, gr):
             j = _rows_jacobian(ev, eu, dv, du, lin, drv_c, nd)  # (R, P + H, 3)
             jg, jh = j[:, :p], j[:, p:].reshape(j.shape[0], nh)
             jm = jnp.einsum("rpk,pq->rqk", jg, minv_g)  # J_g M_g^-1
+            if mgh is not None:  # B_g = J_gh - J_g M_g^-1 M_gh takes J_gh's place
+                jh = jh - jnp.einsum("rpk,ph->rhk", jg, mgh).reshape(j.shape[0], nh)
             f = cho_factor(jnp.einsum("rpk,spk->rs", jm, jg))
             sol = cho_solve(f, jnp.concatenate([(jnp.einsum("rpk,pk->r", jg, y) - gr)[:, None], jh], axis=1))
-            lam0, t = sol[:, 0], sol[:, 1:]  # multipliers at a_h = 0, and S_g^-1 J_gh
-            return jm, lam0, t, jh.T @ t, jh.T @ lam0
+            lam0, t = sol[:, 0], sol[:, 1:]  # multipliers at a_h = 0, and S_g^-1 B_g
+            return jm, y, lam0, t, jh.T @ t, jh.T @ lam0
 
-        out = jax.vmap(group)(sc.dv[k], sc.du[k], sc.lin[k], sc.drv[k], sc.minv[k], e[dot], e[n_dot + dot],
-                              n_drv[drv], minv_q[parts], g[rws])
-        m_eff = m_eff + out[3].sum(0)
-        q_eff = q_eff - out[4].sum(0)
-        eliminated.append(out[:3])
+        if plan.coupled:
+            y = jnp.einsum("gpq,gqk->gpk", sc.minv[k], q_all[parts])  # M_g^-1 Q_g
+            m_eff = m_eff - jnp.kron(sc.mhh[k], eye3)
+            q_eff = q_eff - jnp.einsum("gph,gpk->hk", sc.mgh[k], q_all[parts]).reshape(-1)  # M_hg M_g^-1 Q_g
+        else:
+            y = minv_q[parts]
+        out = jax.vmap(group)(sc.dv[k], sc.du[k], sc.lin[k], sc.drv[k], sc.minv[k], sc.mgh[k], e[dot],
+                              e[n_dot + dot], n_drv[drv], y, g[rws])
+        m_eff = m_eff + out[4].sum(0)
+        q_eff = q_eff - out[5].sum(0)
+        eliminated.append(out[:4])
     # the hub: [M_h* J_h^T; J_h 0] [a_h; lam_h] = [Q_h*; gamma_h]
     fh = cho_factor(m_eff)
     if len(hub_rows):
@@ -298,8 +327,11 @@ def solve_sparse(plan: SparsePlan, prep, r: Rows, g: jax.Array, minv_q: jax.Arra
         lam_h = jnp.zeros((0,), dtype=g.dtype)
         a_h = cho_solve(fh, q_eff)
     accs, lams = [a_h.reshape(-1, 3)], [lam_h]
-    for b, (jm, lam0, t) in zip(plan.buckets, eliminated):
+    for k, (jm, y, lam0, t) in enumerate(eliminated):
         lam_g = lam0 + t @ a_h  # (G, R)
-        accs.append((minv_q[b.arrays()[0]] - jnp.einsum("grqk,gr->gqk", jm, lam_g)).reshape(-1, 3))
+        a_g = y - jnp.einsum("grqk,gr->gqk", jm, lam_g)
+        if plan.coupled:
+            a_g = a_g - jnp.einsum("gph,hk->gpk", sc.mgh[k], a_h.reshape(-1, 3))
+        accs.append(a_g.reshape(-1, 3))
         lams.append(lam_g.reshape(-1))
     return jnp.concatenate(accs)[part_back], jnp.concatenate(lams)[row_back]

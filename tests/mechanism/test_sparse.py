@@ -11,13 +11,18 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from particlesim.mechanism import body_com_positions, simulate_mechanism
+from particlesim.inertia import RigidInertia
+from particlesim.mechanism import MechanismBuilder, body_com_positions, simulate_mechanism
 from particlesim.mechanism.dynamics import _solve, prepare
 from particlesim.scenes import quarter_car as qc
 from particlesim.scenes import roads as rd
 from particlesim.scenes.vehicle import full_vehicle
 
-SOLVE_RTOL = 1e-12  # relative to the largest entry (measured 5e-15 for accelerations, 3e-15 for multipliers)
+SOLVE_RTOL = 1e-12  # relative to the largest entry (the car: measured 5e-15 for accelerations, 3e-15 for multipliers)
+#: hubs sharing joint particles with their groups: the groups' own mass blocks are inverted, and the spider's
+#: saddle-point system has condition number 1.4e5 (eps x cond = 3e-11): measured 1.4e-12 and 1.9e-12 (spider's
+#: accelerations and multipliers), 1.3e-12 and 4.8e-13 (quarter car's)
+COUPLED_RTOL = 1e-10
 GRAD_RTOL = 1e-10  # the issue's bound for derivatives through the split against the dense path's
 ROLLOUT_ATOL = 1e-9  # m: chassis heave of a rollout, both solves at rtol 1e-10 (measured ~1e-12)
 N_STATES = 4
@@ -28,6 +33,37 @@ def car():
     mech, q0 = full_vehicle(stops={"stiffness": 1e6, "damping": 1e3},
                             roads={"FL": rd.Bump(0.06, 0.02, 0.06), "FR": rd.Bump(0.06, 0.02, 0.06)})
     return mech, jnp.asarray(q0)
+
+
+def spider(legs: int = 4):
+    """A trunk whose four primaries are the hips of four two-body legs (ball joints: the hip particle shared with
+    the trunk, the knee shared between thigh and shin), a spring from each hip to its foot: groups coupled to the
+    hub through the mass matrix."""
+    mb = MechanismBuilder(gravity=(0.0, 0.0, -9.81))
+    hips = [np.array([np.cos(a) * 0.3, np.sin(a) * 0.3, 0.5 + 0.05 * (k % 2)])
+            for k, a in enumerate(np.linspace(0, 2 * np.pi, legs, endpoint=False))]
+    mb.body("trunk", RigidInertia.from_principal(10.0, np.mean(hips, 0), (0.3, 0.3, 0.5)),
+            [mb.particle(f"hip {k}", h) for k, h in enumerate(hips)])
+    for k, h in enumerate(hips):
+        out = np.array([h[0], h[1], 0.0]) / np.linalg.norm(h[:2])
+        side = np.cross(out, [0, 0, 1.0])
+        knee = h + 0.25 * out + [0, 0, 0.05]
+        foot = knee + 0.1 * out - [0, 0, 0.45]
+        mb.body(f"thigh {k}", RigidInertia.from_principal(1.0, (h + knee) / 2, (0.002, 0.006, 0.006)),
+                [f"hip {k}", mb.particle(f"knee {k}", knee), mb.particle(f"thigh a {k}", (h + knee) / 2 + 0.05 * side),
+                 mb.particle(f"thigh b {k}", (h + knee) / 2 - 0.05 * side + [0, 0, 0.04])], on_negative="ignore")
+        mb.body(f"shin {k}", RigidInertia.from_principal(0.6, (knee + foot) / 2, (0.004, 0.004, 0.001)),
+                [f"knee {k}", mb.particle(f"foot {k}", foot),
+                 mb.particle(f"shin a {k}", (knee + foot) / 2 + 0.04 * side),
+                 mb.particle(f"shin b {k}", (knee + foot) / 2 - 0.04 * side + 0.03 * out)], on_negative="ignore")
+        mb.spring_damper(f"leg spring {k}", f"hip {k}", f"foot {k}", 500.0, 5.0)
+    mech, q0 = mb.build()
+    return mech, jnp.asarray(q0)
+
+
+@pytest.fixture(scope="module")
+def coupled():
+    return {"spider": spider(), "quarter car": tuple(jnp.asarray(a) if i else a for i, a in enumerate(qc.quarter_car()))}
 
 
 def _both(mech, q, qd, t=0.0):
@@ -57,6 +93,24 @@ def test_accelerations_and_multipliers_equal_dense(car):
               f"{np.abs(lam_s - lam).max():.1e} of {np.abs(lam).max():.1e}")
         np.testing.assert_allclose(a_s, a, rtol=0, atol=SOLVE_RTOL * np.abs(a).max())
         np.testing.assert_allclose(lam_s, lam, rtol=0, atol=SOLVE_RTOL * np.abs(lam).max())
+
+
+@pytest.mark.parametrize("name, hub, groups", [("spider", "trunk", 4), ("quarter car", "chassis", 1)])
+def test_hubs_sharing_particles_with_their_groups(coupled, name, hub, groups):
+    """The plan found and the solve equal to the dense one where a hub's particles are also its groups' (joint
+    particles): the groups' mass coupling enters the hub's articulated inertia."""
+    mech, q0 = coupled[name]
+    plan = mech.topo.sparse
+    assert plan is not None and (plan.hub, plan.n_groups, plan.coupled) == (hub, groups, True)
+    qd = jnp.asarray(np.random.default_rng(4).normal(size=q0.shape))
+    (a, lam), (a_s, lam_s) = _both_jit(mech, q0, qd)
+    print(f"{name}: |a - a_dense| {np.abs(a_s - a).max():.1e} of {np.abs(a).max():.1e}, |lam - lam_dense| "
+          f"{np.abs(lam_s - lam).max():.1e} of {np.abs(lam).max():.1e}")
+    np.testing.assert_allclose(a_s, a, rtol=0, atol=COUPLED_RTOL * np.abs(a).max())
+    np.testing.assert_allclose(lam_s, lam, rtol=0, atol=COUPLED_RTOL * np.abs(lam).max())
+    dense, split = _grads(mech.spring_stiffness, mech.spring_damping, mech.body_mass, mech, q0, qd)
+    for gd, gs in zip(dense, split):
+        np.testing.assert_allclose(gs, gd, rtol=0, atol=GRAD_RTOL * np.abs(gd).max())
 
 
 def _loss(split):
@@ -113,7 +167,9 @@ def test_rollout_with_events_equals_dense(car):
 
 
 def test_mechanism_without_a_plan_is_refused():
-    mech, x0 = qc.quarter_car()
+    mb = MechanismBuilder()  # one body: nothing hangs from it
+    mb.rod("rod", mb.particle("a", (0.0, 0.0, 0.0)), mb.particle("b", (1.0, 0.0, 0.0)), 1.0)
+    mech, x0 = mb.build()
     assert mech.topo.sparse is None
     with pytest.raises(ValueError, match="solve='sparse' needs a hub body"):
         simulate_mechanism(mech, x0, jnp.zeros_like(x0), 0.0, 0.1, solve="sparse")
