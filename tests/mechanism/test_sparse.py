@@ -12,7 +12,7 @@ import pytest
 from jax.test_util import check_grads
 
 from particlesim.inertia import RigidInertia
-from particlesim.mechanism import MechanismBuilder, body_com_positions, simulate_mechanism
+from particlesim.mechanism import MechanismBuilder, body_com_positions, residuals, simulate_mechanism
 from particlesim.mechanism.dynamics import _solve, prepare
 from particlesim.scenes import quarter_car as qc
 from particlesim.scenes import roads as rd
@@ -25,6 +25,7 @@ SOLVE_RTOL = 1e-12  # relative to the largest entry (the car: measured 5e-15 for
 COUPLED_RTOL = 1e-10
 GRAD_RTOL = 1e-10  # the issue's bound for derivatives through the split against the dense path's
 ROLLOUT_ATOL = 1e-9  # m: chassis heave of a rollout, both solves at rtol 1e-10 (measured ~1e-12)
+RESIDUAL_ATOL = 1e-12  # m, m/s: constraint residuals of saved states (the dense path's, measured ~1e-15)
 N_STATES = 4
 
 
@@ -164,6 +165,10 @@ def test_rollout_with_events_equals_dense(car):
     assert np.isfinite(ev[0]).sum() >= 2
     np.testing.assert_allclose(ev[1], ev[0], rtol=0, atol=1e-9)
     np.testing.assert_allclose(heave[1], heave[0], rtol=0, atol=ROLLOUT_ATOL)
+    # every saved state on the constraints (positions and velocities)
+    phi, vel = (np.asarray(a) for a in jax.vmap(lambda x, v: residuals(mech, x, v))(runs[1].q, runs[1].qd))
+    print(f"saved states' residuals: {np.abs(phi).max():.1e} m, {np.abs(vel).max():.1e} m/s")
+    assert np.abs(phi).max() <= RESIDUAL_ATOL and np.abs(vel).max() <= RESIDUAL_ATOL
 
 
 def test_mechanism_without_a_plan_is_refused():
