@@ -341,8 +341,7 @@ def simulate_mechanism(mech: Mechanism, q0, qd0, t0: float, t1: float, *, solver
     mechanism; one Cholesky factorisation of the ``C x C`` constraint system per evaluation), "chain" (the O(N)
     tip-to-base recursion of :mod:`.chain`, for uniform serial chains) or "sparse" (the groups hanging from a hub
     body, e.g. a vehicle's corners from its chassis, eliminated apart: :mod:`.sparse`; where ``mech.topo.sparse``
-    holds a plan; its projections between steps stay dense: a split one re-factorises per pass and measured no
-    faster on the car's ride, at 1.5-2 s more compile). ``adjoint``: a name in :data:`ADJOINTS`
+    holds a plan; its projections between steps stay dense, where one factorisation serves both passes). ``adjoint``: a name in :data:`ADJOINTS`
     or a diffrax adjoint; ``None`` is "checkpoint". "backsolve" requires ``stabilise=False`` (module docstring).
     ``pid``: ``(pcoeff, icoeff, dcoeff)`` of the step-size controller, as in :func:`particlesim.simulate.simulate`
     (defaults (0, 1, 0) explicit, integral control; (0.3, 0.3, 0) implicit). A scene whose step is bounded by
