@@ -139,7 +139,7 @@ def ride_rows() -> dict:
         out[f"{solve}_first_s"] = time.perf_counter() - t
         runs[solve] = run
         sol = _runner(mech, q, RIDE["t_end"], solve, saves)()[1]
-        traj[solve] = np.asarray(heave(sol.q))
+        traj[solve] = np.array(heave(sol.q), copy=True)
         out[f"{solve}_steps"], out[f"{solve}_rejected"] = int(sol.steps), int(sol.rejected)
     laps = {s: [] for s in runs}
     for _ in range(RIDE["laps"]):
@@ -154,7 +154,7 @@ def ride_rows() -> dict:
     out["heave_difference_m"] = float(np.abs(traj["sparse"] - traj["dense"]).max())
     ref = simulate_mechanism(mech, q, jnp.zeros_like(q), 0.0, RIDE["t_end"], solver="dopri8", rtol=1e-12,
                              atol=1e-14, events=True, saveat_ts=saves)
-    ref = np.asarray(heave(ref.q))
+    ref = np.array(heave(ref.q), copy=True)
     for solve in runs:
         out[f"{solve}_max_error_m"] = float(np.abs(traj[solve] - ref).max())
     print(out, flush=True)
