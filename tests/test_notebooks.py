@@ -10,9 +10,7 @@ ROOT = Path(__file__).resolve().parent.parent
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
-def test_notebook_executes(path, monkeypatch):
+def _execute(path, monkeypatch):
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     pytest.importorskip("ipykernel")
@@ -34,3 +32,15 @@ def test_notebook_executes(path, monkeypatch):
     client.execute()
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.output_type == "error"]
     assert not errors
+
+
+# One class per notebook: under ``--dist loadscope`` each class is its own scope, so the notebooks run on whichever
+# worker is free rather than all on one.
+for _path in NOTEBOOKS:
+    _name = "TestNotebook_" + _path.stem
+
+    def _test(self, monkeypatch, _path=_path):
+        _execute(_path, monkeypatch)
+
+    _test.__name__ = "test_executes"
+    globals()[_name] = pytest.mark.slow(type(_name, (), {"test_executes": _test}))
