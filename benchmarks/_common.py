@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import csv
 import datetime as _dt
+import json
 import platform
 import statistics
 import time
@@ -63,3 +65,13 @@ def environment() -> dict:
         "python": platform.python_version(),
         "versions": versions,
     }
+
+
+def write_results(name: str, res: dict, rows: list[dict]) -> None:
+    """``results/<name>.json`` (the whole ``res``) and ``results/<name>.csv`` (``rows``, one line each)."""
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f"{name}.json").write_text(json.dumps(res, indent=1))
+    with open(RESULTS / f"{name}.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)

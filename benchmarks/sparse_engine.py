@@ -16,9 +16,7 @@ Writes ``results/sparse_engine.{json,csv,png}``. Run: ``python -m benchmarks.spa
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import json
 import time
 import warnings
 
@@ -29,11 +27,10 @@ import numpy as np
 
 from particlesim.mechanism import MechanismBuilder, body_com_positions, simulate_mechanism
 from particlesim.mechanism.dynamics import _solve, prepare
-from particlesim.inertia import RigidInertia
 from particlesim.scenes import quarter_car as qc
 from particlesim.scenes import vehicle as sv
 
-from ._common import RESULTS, environment, median_time
+from ._common import RESULTS, environment, median_time, write_results
 
 NAME = "sparse_engine"
 CORNER_N = (1, 2, 4, 8)
@@ -53,10 +50,7 @@ def corner_vehicle(n: int):
     mass = 500.0 * n
     com = np.array([corner.bodies["spindle"].com[0] - (axles - 1) * sv.WHEELBASE / 2, 0.0, 0.6])
     moments = mass / 12 * np.array([1.0 + 0.25, axles**2 * 4.0 + 0.25, axles**2 * 4.0 + 1.0])
-    sigma = (moments.sum() / 2 - moments) / mass
-    tet = np.array([[1, 0, -0.5**0.5], [-1, 0, -0.5**0.5], [0, 1, 0.5**0.5], [0, -1, 0.5**0.5]]) / 1.5**0.5
-    mb.body("chassis", RigidInertia.from_principal(mass, com, moments, name="chassis"),
-            [mb.particle(f"chassis {k}", p) for k, p in enumerate(com + tet * np.sqrt(5 * sigma))])
+    sv._chassis(mb, mass, com, moments)
     for k in range(n):
         sy = 1.0 if k % 2 == 0 else -1.0
         sv._corner(mb, f"{k}", corner, -(k // 2) * sv.WHEELBASE, sy, sv._spring_values(corner), sv.TYRE, 0.0)
@@ -106,14 +100,11 @@ def scaling() -> list[dict]:
 
 def _rest_car():
     """The full vehicle on the ride's roads (:func:`benchmarks.wp_vehicle.ride`) at static rest."""
-    from particlesim.mechanism import static_equilibrium
+    from particlesim.reports.vehicle_ride import ride_car
 
     from .wp_vehicle import ride
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", sv.InertiaWarning)
-        mech, q0 = sv.full_vehicle(roads=ride())
-    return mech, static_equilibrium(mech, jnp.asarray(q0)).q
+    return ride_car(ride())
 
 
 def _runner(mech, q, t_end, solve, saves=None, block=True):
@@ -220,13 +211,8 @@ def main() -> dict:
     res["four_corners_over_quarter_car"] = {r["solve"]: r["eval_us"] / qc_us for r in res["scaling"]
                                             if r["corners"] == 4}
     print(res["slopes"], res["four_corners_over_quarter_car"])
-    RESULTS.mkdir(exist_ok=True)
+    write_results(NAME, res, res["scaling"])
     plot(res)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(res, indent=1))
-    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(res["scaling"][0]))
-        w.writeheader()
-        w.writerows(res["scaling"])
     return res
 
 

@@ -14,18 +14,14 @@ Writes ``results/step_rejections.{json,csv}``. Run: ``python -m benchmarks.step_
 
 from __future__ import annotations
 
-import csv
-import json
-
 import particlesim  # noqa: F401  (float64)
 import diffrax
 import jax.numpy as jnp
-import numpy as np
 
 from particlesim.mechanism import simulate_mechanism
 from particlesim.scenes.vehicle import full_vehicle
 
-from ._common import RESULTS, environment
+from ._common import environment, write_results
 
 NAME = "step_rejections"
 RTOLS = (1e-4, 1e-6, 1e-8)
@@ -82,12 +78,7 @@ def oscillator_rows() -> list[dict]:
 
 def main() -> dict:
     res = {"environment": environment(), "rows": car_rows() + oscillator_rows()}
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(res, indent=1))
-    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(res["rows"][0]))
-        w.writeheader()
-        w.writerows(res["rows"])
+    write_results(NAME, res, res["rows"])
     return res
 
 

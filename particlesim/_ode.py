@@ -539,9 +539,8 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
     # starts at its root, and the projection after an event may leave it a rounding error across) is measured from
     # that start, lifted to SURFACE_MARGIN; the others are not moved. The start must be strictly positive (a start
     # at zero would hide the next crossing of any other element within the first step), and by more than rounding:
-    # diffrax evaluates the condition again inside its loop, where the surfaces may round differently, and a
-    # start lifted to exactly zero then read as crossed on the first step, rejected or not (a car whose two front
-    # wheels left the road together: an event at the end of a rejected 10 ms step, its saves interpolated from it).
+    # diffrax evaluates the condition again inside its loop, where the surfaces may round differently, and a start
+    # lifted to exactly zero can then read as crossed on the first step, even a rejected one.
     def condition(t, y, args, **kw):
         return jnp.min(surfaces(t, y, args[0], args[1]) + args[2])
 

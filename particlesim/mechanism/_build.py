@@ -79,6 +79,7 @@ class _Build:
         self.dot: list[tuple] = []  # (a, b, c, d, scale, kappa, label)
         self.lin: list[tuple] = []  # (a, b, axis, label)
         self.drv: list[tuple] = []  # (a, b, axis, spin, offset, label, fn)
+        self.jacobian0: np.ndarray | None = None  # the rows' Jacobian at the assembly (the rank check's)
 
     def run(self, dof, assemble=False, hold=(), multipliers="auto"):
         self.bodies()

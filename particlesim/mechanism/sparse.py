@@ -5,16 +5,17 @@ mechanism's particle graph (two particles adjacent when a constraint row or a bo
 it falls apart into *groups* (the corners), each touching the rest of the mechanism only through the hub. Ordering
 the saddle-point system group by group, hub last, makes it block-arrowhead:
 
-    M_g a_g + J_g^T lam_g                         = Q_g        (every group g)
-    M_h a_h + sum_g J_gh^T lam_g + J_h^T lam_h     = Q_h        (the hub's particles)
-    J_g a_g + J_gh a_h                             = gamma_g
-    J_h a_h                                        = gamma_h
+    M_g a_g + M_gh a_h + J_g^T lam_g                              = Q_g        (every group g)
+    M_h a_h + sum_g (M_hg a_g + J_gh^T lam_g) + J_h^T lam_h       = Q_h        (the hub's particles)
+    J_g a_g + J_gh a_h                                            = gamma_g
+    J_h a_h                                                       = gamma_h
 
-(``M`` has no block between a group and the hub: a particle shared by the hub and a group body refuses the plan).
-Each group is eliminated on its own, ``lam_g = S_g^-1 (J_g M_g^-1 Q_g - gamma_g + J_gh a_h)`` with
-``S_g = J_g M_g^-1 J_g^T``, which leaves the hub with its articulated (effective) inertia
+(``M_gh`` is zero unless a body holds particles of both: a joint particle the hub shares with a group, as a leg's
+hip). Each group is eliminated on its own: with ``N_g = M_g^-1 M_gh``, ``B_g = J_gh - J_g N_g`` and
+``S_g = J_g M_g^-1 J_g^T``, ``lam_g = S_g^-1 (J_g M_g^-1 Q_g - gamma_g + B_g a_h)``, which leaves the hub with its
+articulated (effective) inertia
 
-    M_h* = M_h + sum_g J_gh^T S_g^-1 J_gh,      Q_h* = Q_h - sum_g J_gh^T lam_g(a_h = 0),
+    M_h* = M_h - sum_g M_hg N_g + sum_g B_g^T S_g^-1 B_g,      Q_h* = Q_h - sum_g (N_g^T Q_g + B_g^T lam_g(a_h = 0)),
 
 a small saddle-point system of the hub's own rows; then every group's multipliers and accelerations follow. This is
 Attia's tip-to-base recursion for one level of a tree of loops: each group is a closed loop or a branch of any
@@ -38,9 +39,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.linalg import cho_factor, cho_solve
 
-from .model import Topology
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ._algebra import _partner
+from .model import Topology
 
 if TYPE_CHECKING:
     from ._algebra import Rows
@@ -101,21 +104,14 @@ def _row_columns(topo: Topology) -> list[tuple[str, int, frozenset]]:
 
 
 def _components(nodes: list[int], edges: list[frozenset]) -> list[list[int]]:
-    parent = {n: n for n in nodes}
-
-    def find(n):
-        while parent[n] != n:
-            parent[n] = parent[parent[n]]
-            n = parent[n]
-        return n
-
-    for e in edges:
-        e = [n for n in e if n in parent]
-        for n in e[1:]:
-            parent[find(n)] = find(e[0])
+    """The connected components of ``nodes`` joined by the cliques ``edges`` (members outside ``nodes`` ignored)."""
+    at = {n: i for i, n in enumerate(nodes)}
+    pairs = [(at[e[0]], at[n]) for e in ([n for n in clique if n in at] for clique in edges) for n in e[1:]]
+    i, j = (np.asarray(x, dtype=int) for x in zip(*pairs)) if pairs else (np.zeros(0, int), np.zeros(0, int))
+    _, label = connected_components(coo_matrix((np.ones(len(i)), (i, j)), shape=(len(nodes),) * 2), directed=False)
     comps: dict[int, list[int]] = {}
-    for n in nodes:
-        comps.setdefault(find(n), []).append(n)
+    for n, lab in zip(nodes, label):
+        comps.setdefault(int(lab), []).append(n)
     return sorted(comps.values())
 
 
@@ -181,11 +177,12 @@ def validate(plan: SparsePlan | None, j: np.ndarray, n_dot: int, n_lin: int, ran
         for parts, dot, lin, drv in zip(b.parts, b.dot, b.lin, b.drv):
             r = list(dot) + [n_dot + i for i in lin] + [n_dot + n_lin + i for i in drv]
             c = (3 * np.asarray(parts)[:, None] + np.arange(3)).reshape(-1)
-            sub = j[np.ix_(r, c)]
+            if len(r) > len(c):
+                return False
             if not len(r):
                 continue
-            sv = np.linalg.svd(sub, compute_uv=False)
-            if sv[-1] <= rank_rtol * max(sv[0], 1e-300) or len(r) > len(c):
+            sv = np.linalg.svd(j[np.ix_(r, c)], compute_uv=False)
+            if sv[-1] <= rank_rtol * max(sv[0], 1e-300):
                 return False
     return True
 
@@ -245,7 +242,7 @@ def prepare_split(plan: SparsePlan, prep) -> SplitConstants:
 
 
 @functools.lru_cache(maxsize=64)
-def _layout(plan: SparsePlan, n_dot: int, n_lin: int, n_free: int):
+def _layout(plan: SparsePlan, n_dot: int, n_lin: int):
     """Static index arrays: per bucket its rows' positions in the multiplier vector (G, R); the hub's; and the
     gathers that put ``[hub; bucket 0; bucket 1; ...]`` back in state and row order."""
     rows = []
@@ -274,7 +271,7 @@ def solve_sparse(plan: SparsePlan, prep, r: Rows, g: jax.Array, minv_q: jax.Arra
     ``prep`` was prepared without them."""
     sc = prep.split if prep.split is not None else prepare_split(plan, prep)
     n_dot, n_lin = prep.scale.shape[0], prep.c_lin.shape[0]
-    rows, hub_rows, part_back, row_back = _layout(plan, n_dot, n_lin, minv_q.shape[0])
+    rows, hub_rows, part_back, row_back = _layout(plan, n_dot, n_lin)
     hub = np.asarray(plan.hub_parts, dtype=int)
     nh = 3 * len(hub)
     e = _partner(r.vu, prep.turn)
@@ -317,11 +314,11 @@ def solve_sparse(plan: SparsePlan, prep, r: Rows, g: jax.Array, minv_q: jax.Arra
     fh = cho_factor(m_eff)
     if len(hub_rows):
         hd = np.asarray(plan.hub_dot, dtype=int)
-        jh = _rows_jacobian(e[hd], e[n_dot + hd], sc.hub_dv, sc.hub_du, sc.hub_lin, sc.hub_drv,
-                            n_drv[np.asarray(plan.hub_drv, dtype=int)]).reshape(len(hub_rows), nh)
-        sol = cho_solve(fh, jnp.concatenate([q_eff[:, None], jh.T], axis=1))
+        j_hub = _rows_jacobian(e[hd], e[n_dot + hd], sc.hub_dv, sc.hub_du, sc.hub_lin, sc.hub_drv,
+                               n_drv[np.asarray(plan.hub_drv, dtype=int)]).reshape(len(hub_rows), nh)
+        sol = cho_solve(fh, jnp.concatenate([q_eff[:, None], j_hub.T], axis=1))
         u, mj = sol[:, 0], sol[:, 1:]
-        lam_h = cho_solve(cho_factor(jh @ mj), jh @ u - g[hub_rows])
+        lam_h = cho_solve(cho_factor(j_hub @ mj), j_hub @ u - g[hub_rows])
         a_h = u - mj @ lam_h
     else:
         lam_h = jnp.zeros((0,), dtype=g.dtype)

@@ -412,6 +412,16 @@ def _corner(mb, c, corner: CornerData, dx, sy, spring, tyre, ground_lift, road=N
     return float(bd["spindle"][1][2]) - tyre["radius"] + ground_lift  # the tyre's ground height (B7)
 
 
+def _chassis(mb, mass: float, com, moments) -> None:
+    """The body ``"chassis"`` with principal ``moments`` about the vehicle axes at ``com``, its four primaries
+    ``"chassis 0..3"`` a regular simplex stretched along the principal axes (B2)."""
+    sigma = (np.sum(moments) / 2 - np.asarray(moments)) / mass  # second moments per kg
+    tet = np.array([[1, 0, -0.5**0.5], [-1, 0, -0.5**0.5], [0, 1, 0.5**0.5], [0, -1, 0.5**0.5]]) / 1.5**0.5
+    prim = com + tet * np.sqrt(5 * sigma)
+    mb.body("chassis", RigidInertia.from_principal(mass, com, moments, name="chassis"),
+            [mb.particle(f"chassis {k}", p) for k, p in enumerate(prim)])
+
+
 def full_vehicle(*, front=None, rear=None, chassis_mass=2000.0, chassis_inertia=None, spring=None, tyre=None,
                  roads=None, spring_curve=False, stops=None, anti_roll_bar=None, steering=None):
     """The full vehicle (10 degrees of freedom); returns ``(mech, q0)``, at rest in the assembly configuration.
@@ -446,11 +456,7 @@ def full_vehicle(*, front=None, rear=None, chassis_mass=2000.0, chassis_inertia=
     if chassis_inertia is None:
         lx, ly, lz = _BOX
         chassis_inertia = chassis_mass / 12 * np.array([ly**2 + lz**2, lx**2 + lz**2, lx**2 + ly**2])
-    chassis = RigidInertia.from_principal(chassis_mass, com, chassis_inertia, name="chassis")
-    sigma = (np.sum(chassis_inertia) / 2 - np.asarray(chassis_inertia)) / chassis_mass  # second moments per kg
-    tet = np.array([[1, 0, -0.5**0.5], [-1, 0, -0.5**0.5], [0, 1, 0.5**0.5], [0, -1, 0.5**0.5]]) / 1.5**0.5
-    prim = com + tet * np.sqrt(5 * sigma)  # B2: a regular simplex stretched along the principal axes
-    mb.body("chassis", chassis, [mb.particle(f"chassis {k}", p) for k, p in enumerate(prim)])
+    _chassis(mb, chassis_mass, com, chassis_inertia)
     masses = [sum(b.mass for b in cd.bodies.values()) for cd in (front, rear)]
     deflection = (chassis_mass + 2 * (masses[0] + masses[1])) * _G / 4 / tyre["stiffness"]
     roads = dict(roads or {})

@@ -35,8 +35,8 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-__all__ = ["RK4_TABLEAU", "integrate_pos", "rk4_step", "rk4_rollout", "tyre_forward", "connect_residual",
-           "chain_rollout", "quarter_car_rollout", "forced_rk4_rollout"]
+__all__ = ["RK4_TABLEAU", "integrate_pos", "initial_data", "rk4_step", "rk4_rollout", "tyre_forward",
+           "connect_residual", "chain_rollout", "quarter_car_rollout", "forced_rk4_rollout"]
 
 #: MuJoCo's RK4: (stage offset a_i, weight b_i).
 RK4_TABLEAU = np.array([[0.0, 1 / 6], [0.5, 1 / 3], [0.5, 1 / 3], [1.0, 1 / 6]])
@@ -109,7 +109,7 @@ def rk4_rollout(m: mujoco.MjModel, n_save: int, forward: Callable, observe: Call
 
 
 
-def _start(m: mujoco.MjModel, mx):
+def initial_data(m: mujoco.MjModel, mx):
     """MJX data at the model's reference pose after one jitted forward (x64 field types settle, see the brief)."""
     with jax.numpy_rank_promotion("allow"):
         return jax.jit(mjx.forward)(mx, mjx.put_data(m, mujoco.MjData(m)))
@@ -160,7 +160,7 @@ def chain_rollout(m: mujoco.MjModel, n_save: int):
         return jnp.concatenate([mjx.kinematics(mx, d).site_xpos[None], last])
 
     mx = mjx.put_model(m)
-    return jax.jit(fn), mx, _start(m, mx)
+    return jax.jit(fn), mx, initial_data(m, mx)
 
 
 def quarter_car_rollout(m: mujoco.MjModel, n_save: int, *, ground: float, tyre: dict):
@@ -186,7 +186,7 @@ def quarter_car_rollout(m: mujoco.MjModel, n_save: int, *, ground: float, tyre: 
         return out[:, 0], out[:, 1], out[:, 2]
 
     mx = mjx.put_model(m)
-    return fn, mx, _start(m, mx)
+    return fn, mx, initial_data(m, mx)
 
 
 def forced_rk4_rollout(m: mujoco.MjModel, n_save: int, force, *, observe=lambda mx, d: d.qpos):
@@ -199,4 +199,4 @@ def forced_rk4_rollout(m: mujoco.MjModel, n_save: int, force, *, observe=lambda 
         return mjx.forward(mx, d.replace(qfrc_applied=force(d.time)))
 
     mx = mjx.put_model(m)
-    return rk4_rollout(m, n_save, forward, observe), mx, _start(m, mx)
+    return rk4_rollout(m, n_save, forward, observe), mx, initial_data(m, mx)

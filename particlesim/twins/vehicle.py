@@ -251,6 +251,15 @@ def attitude(rot, rot0) -> tuple[np.ndarray, np.ndarray]:
     return -np.arcsin(np.clip(r[..., 2, 0], -1.0, 1.0)), np.arctan2(r[..., 2, 1], r[..., 2, 2])
 
 
+def _save_grid(t_end: float, timestep: float, save_dt: float) -> tuple[int, int]:
+    """``(steps per save, saves after t = 0)``, refusing a ``save_dt`` that is no multiple of ``timestep`` or does
+    not divide ``t_end``."""
+    per, n_save = (int(round(x)) for x in (save_dt / timestep, t_end / save_dt))
+    if abs(per * timestep - save_dt) > 1e-9 * save_dt or abs(n_save * save_dt - t_end) > 1e-9 * t_end:
+        raise ValueError(f"save_dt {save_dt} must be a multiple of timestep {timestep} and divide t_end {t_end}")
+    return per, n_save
+
+
 def twin_rollout(mech, q0, t_end: float, timestep: float = 1e-4, *, save_dt: float = 0.01,
                  tc: float | None = None) -> dict[str, np.ndarray]:
     """Release the twin from rest at ``q0`` (from :func:`~particlesim.mechanism.static_equilibrium` too: any
@@ -260,9 +269,7 @@ def twin_rollout(mech, q0, t_end: float, timestep: float = 1e-4, *, save_dt: flo
     [m]; ``pitch`` and ``roll`` of the chassis since ``q0`` [rad] (:func:`attitude`); the loops' residuals per
     corner (:func:`corners` order), ``ball`` = |upper ball joint on the arm - on the upright| [m] and ``tie_rod`` =
     |tie-rod length - its length at q0| [m], each ``(T, corners)``."""
-    per, n_save = (int(round(x)) for x in (save_dt / timestep, t_end / save_dt))
-    if abs(per * timestep - save_dt) > 1e-9 * save_dt or abs(n_save * save_dt - t_end) > 1e-9 * t_end:
-        raise ValueError(f"save_dt {save_dt} must be a multiple of timestep {timestep} and divide t_end {t_end}")
+    per, n_save = _save_grid(t_end, timestep, save_dt)
     m = twin_model(mech, q0, timestep, tc)
     d = mujoco.MjData(m)
     install_callback(m, mech)
@@ -316,9 +323,7 @@ def mjx_twin_rollout(mech, q0, t_end: float, timestep: float = 5e-4, *, save_dt:
 
     from . import mjx as rk4
 
-    per, n_save = (int(round(x)) for x in (save_dt / timestep, t_end / save_dt))
-    if abs(per * timestep - save_dt) > 1e-9 * save_dt or abs(n_save * save_dt - t_end) > 1e-9 * t_end:
-        raise ValueError(f"save_dt {save_dt} must be a multiple of timestep {timestep} and divide t_end {t_end}")
+    per, n_save = _save_grid(t_end, timestep, save_dt)
     m = twin_model(mech, q0, timestep, tc)
     cs = corners(mech)
     name = lambda kind, n: mujoco.mj_name2id(m, kind, n)  # noqa: E731
@@ -360,7 +365,7 @@ def mjx_twin_rollout(mech, q0, t_end: float, timestep: float = 5e-4, *, save_dt:
                 "tie_rod": jnp.abs(rods - rod_length0)}
 
     mx = mjx.put_model(m)
-    out = jax.device_get(rk4.rk4_rollout(m, n_save + 1, forward, observe)(mx, rk4._start(m, mx), per))
+    out = jax.device_get(rk4.rk4_rollout(m, n_save + 1, forward, observe)(mx, rk4.initial_data(m, mx), per))
     pitch, roll = attitude(out["rot"], out["rot"][0])
     return {"t": per * timestep * np.arange(n_save + 1), "heave": np.asarray(out["heave"]), "pitch": pitch,
             "roll": roll, "ball": np.asarray(out["ball"]), "tie_rod": np.asarray(out["tie_rod"])}

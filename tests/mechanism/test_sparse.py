@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
+from particlesim import _ode
 from particlesim.inertia import RigidInertia
 from particlesim.mechanism import MechanismBuilder, body_com_positions, residuals, simulate_mechanism
 from particlesim.mechanism.dynamics import _solve, prepare
@@ -165,6 +166,13 @@ def test_rollout_with_events_equals_dense(car):
     assert np.isfinite(ev[0]).sum() >= 2
     np.testing.assert_allclose(ev[1], ev[0], rtol=0, atol=1e-9)
     np.testing.assert_allclose(heave[1], heave[0], rtol=0, atol=ROLLOUT_ATOL)
+    # new parameter values reuse the compiled split rollout (traces counted, not timed)
+    before = _ode.TRACES["simulate_mechanism"]
+    stiffer = mech.with_params(spring={n: {"stiffness": 1.1 * float(k)}
+                                       for n, k in zip(mech.topo.spring_names, mech.spring_stiffness)})
+    again = simulate_mechanism(stiffer, q0, jnp.zeros_like(q0), 0.0, 0.4, rtol=1e-10, atol=1e-12, saveat_ts=ts,
+                               events=True, solve="sparse")
+    assert bool(again.ok) and _ode.TRACES["simulate_mechanism"] == before
     # every saved state on the constraints (positions and velocities)
     phi, vel = (np.asarray(a) for a in jax.vmap(lambda x, v: residuals(mech, x, v))(runs[1].q, runs[1].qd))
     print(f"saved states' residuals: {np.abs(phi).max():.1e} m, {np.abs(vel).max():.1e} m/s")
