@@ -31,6 +31,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 from .errors import ModelError
+from ._esdirk import StructuredESDIRK
 from ._xla import TopJit
 
 try:  # the concrete (immutable) array type: the common leaf is told by one type comparison (isinstance is slower)
@@ -385,11 +386,11 @@ class _Projected(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSolver):
 
     @property
     def scan_kind(self):  # diffrax's adjoints ask Runge-Kutta solvers (and their wrappers) for it
-        return self.solver.scan_kind
+        return getattr(self.solver, "scan_kind", None)
 
     @property
     def root_finder(self):  # diffrax asks implicit solvers (and their wrappers) for it
-        return self.solver.root_finder
+        return getattr(self.solver, "root_finder", None)
 
     def init(self, terms, t0, t1, y0, args):
         return self.solver.init(terms, t0, t1, y0, args)
@@ -403,8 +404,10 @@ class _Projected(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSolver):
         return self.solver.func(terms, t0, y0, args)
 
 
-def _solver_and_controller(cfg: Settings, rtol, atol, projection):
-    """The solver (wrapped with the projection, if any) and the PID controller of ``cfg``."""
+def _solver_and_controller(cfg: Settings, rtol, atol, projection, system=None):
+    """The solver (wrapped with the projection, if any) and the PID controller of ``cfg``. An implicit solver
+    given the system's structure (``system``, a :class:`~particlesim._esdirk.SecondOrderSystem`) is the
+    structured ESDIRK of :mod:`particlesim._esdirk` with the same tableau; without it, diffrax's own."""
     implicit = cfg.solver in IMPLICIT_SOLVERS
     controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=cfg.pid[0], icoeff=cfg.pid[1],
                                        dcoeff=cfg.pid[2], dtmax=cfg.max_step)
@@ -416,9 +419,12 @@ def _solver_and_controller(cfg: Settings, rtol, atol, projection):
         kw["scan_kind"] = "lax"
     elif isinstance(cfg.adjoint, diffrax.DirectAdjoint):
         kw["scan_kind"] = "bounded"
-    if implicit:  # chord-Newton stage solves at the controller's tolerances (diffrax's default, stated here)
-        kw["root_finder"] = diffrax.VeryChord(rtol=rtol, atol=atol, norm=controller.norm)
-    solver = SOLVERS[cfg.solver](**kw)
+    if implicit and system is not None:
+        solver = StructuredESDIRK(system, rtol, atol, method=cfg.solver)
+    else:
+        if implicit:  # chord-Newton stage solves at the controller's tolerances (diffrax's default, stated here)
+            kw["root_finder"] = diffrax.VeryChord(rtol=rtol, atol=atol, norm=controller.norm)
+        solver = SOLVERS[cfg.solver](**kw)
     if projection is not None:
         solver = _Projected(solver, projection)
     return solver, controller
@@ -512,7 +518,7 @@ class _EventBisection(optx.Bisection):
 
 def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_surfaces: int, max_events: int, *,
                      t0: Array, t1: Array, rtol: Array, atol: Array, dt0, ts, cfg: Settings,
-                     projection: Callable | None = None, hint: str = ""):
+                     projection: Callable | None = None, hint: str = "", system=None):
     """:func:`integrate` of a switching system as smooth segments joined at located events.
 
     ``modes`` (S,) holds each switching element's law (1.0 on, 0.0 off) and stays fixed within a segment:
@@ -525,7 +531,7 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
     ``lax.scan``, so every adjoint differentiates it); a run with more switches fails. Returns ``(ts, ys, steps,
     rejected, result, ok, events)``.
     """
-    solver, controller = _solver_and_controller(cfg, rtol, atol, projection)
+    solver, controller = _solver_and_controller(cfg, rtol, atol, projection, system)
     own, diffrax_throws = _who_throws(cfg)
     save = ts if cfg.save_ts else jnp.stack([t0, t1])
     # One event function, the least of the surfaces: it crosses zero (downwards) when the first of them does,
@@ -614,12 +620,13 @@ def integrate_events(field: Callable, y0, args, modes0, surfaces: Callable, n_su
 
 
 def integrate(field: Callable, y0, args, *, t0: Array, t1: Array, rtol: Array, atol: Array, dt0, ts,
-              cfg: Settings, projection: Callable | None = None, hint: str = ""):
+              cfg: Settings, projection: Callable | None = None, hint: str = "", system=None):
     """``diffrax.diffeqsolve`` of ``dy/dt = field(t, y, args)`` with the settings ``cfg``; ``projection(t, y, args)``
-    is applied after every step when given. Returns ``(ts, ys, steps, rejected, result, ok)``; ``ys`` are NaN
+    is applied after every step when given; ``system``: the structure an implicit solver uses
+    (:func:`_solver_and_controller`). Returns ``(ts, ys, steps, rejected, result, ok)``; ``ys`` are NaN
     when the run failed (``throw=False``). With ``throw`` a failure raises diffrax's error, followed by ``hint``
     when the step budget ran out."""
-    solver, controller = _solver_and_controller(cfg, rtol, atol, projection)
+    solver, controller = _solver_and_controller(cfg, rtol, atol, projection, system)
     own, diffrax_throws = _who_throws(cfg)
     saveat = diffrax.SaveAt(ts=ts) if cfg.save_ts else diffrax.SaveAt(t0=True, t1=True)
     sol = diffrax.diffeqsolve(

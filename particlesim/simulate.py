@@ -30,6 +30,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from . import _ode
+from ._esdirk import field_system
 from ._ode import ADJOINTS, IMPLICIT_SOLVERS, SOLVERS, Solution
 from ._xla import top_level
 from .errors import ModelError
@@ -161,6 +162,10 @@ def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, t
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate", "(q0, qd0)")
 
     rate = getattr(params, "configuration_rate", None)
+    # Implicit solvers: the structured ESDIRK (one Newton matrix per step at most, from the accelerations'
+    # Jacobian; particlesim._esdirk) wherever q' = q̇; diffrax's own where a configuration rate maps them.
+    identity_rate = rate is None or not getattr(params, "multi_dof", True)  # no free or ball joint: q' = q̇
+    structured = cfg.solver in IMPLICIT_SOLVERS and identity_rate
     rate = (lambda p, q, qd: qd) if rate is None else (lambda p, q, qd: p.configuration_rate(q, qd))
 
     def controlled(t, q, qd, p):
@@ -197,14 +202,15 @@ def _simulate(dynamics, control, params, q0, qd0, t0, t1, rtol, atol, dt0, ts, t
         modes0 = (start[idx] >= 0.0).astype(qd0.dtype)
         ts_, (q, qd), steps, rejected, result, ok, ev = _ode.integrate_events(
             field_modes, (q0, qd0), params, modes0, surfaces, len(idx), max_events, t0=t0, t1=t1, rtol=rtol,
-            atol=atol, dt0=dt0, ts=ts, cfg=cfg)
+            atol=atol, dt0=dt0, ts=ts, cfg=cfg, system=field_system(field_modes) if structured else None)
         joint = jnp.where(ev.element >= 0, jnp.asarray(idx)[jnp.maximum(ev.element, 0)], -1)
         events = _ode.Events(ts=ev.ts, element=joint, active=ev.active)
     else:
         # The parameters reach diffrax through ``args`` (not a closure), so every adjoint, BacksolveAdjoint
         # included, differentiates them.
         ts_, (q, qd), steps, rejected, result, ok = _ode.integrate(
-            vector_field, (q0, qd0), params, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg)
+            vector_field, (q0, qd0), params, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg,
+            system=field_system(vector_field) if structured else None)
     if warn:  # a differentiated rollout stepping across a Coulomb switch: say so
         w = np.asarray([j for j, _ in warn], dtype=int)
         v = jnp.concatenate([qd0[None], qd])[:, w]

@@ -43,6 +43,7 @@ from .chain import chain_accelerations, chain_mass_blocks, chain_plan, chain_pro
 from ._algebra import (BETWEEN_STEPS, FULL, Prepared, apply_j, apply_minv_jt, drive_at, factor_schur, jacobian,
                        prepare, residual, rows, schur, schur_solve, solve_schur, velocity_target)
 from .dynamics import _solve
+from .implicit import stage_system
 from .forces import one_sided_gaps, one_sided_names
 from .model import ELEMENT_FIELDS, ELEMENT_LABELS, NON_NEGATIVE, Mechanism
 from .._jit import compiled
@@ -253,6 +254,12 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
         return one_sided_gaps(m, p.wk @ q.reshape(-1, 3) + p.p0, t)
 
     n_switch = len(one_sided_names(mech))
+    # Implicit solvers take their Newton matrix from the mechanism's structure (:mod:`.implicit`); the chain path's
+    # O(N) solve has no saddle-point form, so it keeps diffrax's own.
+    implicit = cfg.solver in _ode.IMPLICIT_SOLVERS and plan is None
+
+    def system(contact_of=None):
+        return stage_system(unpack, baumgarte, split, contact_of, mech.n_constraints, n_switch > 0)
 
     events = None
     args0 = [leaves[i] for i in arrays]
@@ -274,11 +281,13 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
             field_modes, (q0, qd0), args0, modes0, surfaces, n_switch, max_events, t0=t0, t1=t1,
             rtol=rtol, atol=atol, dt0=dt0, ts=ts, cfg=cfg,
             projection=(lambda t, y, args: projection(t, y, args[0])) if stabilise else None,  # args: (args, modes)
-            hint=_budget_hint(mech, cfg.solver, solve))
+            hint=_budget_hint(mech, cfg.solver, solve),
+            system=system(lambda args: args[1] > 0.5) if implicit else None)
     else:
         ts_, (qs, qds), steps, rejected, result, ok = _ode.integrate(
             field, (q0, qd0), args0, t0=t0, t1=t1, rtol=rtol, atol=atol, dt0=dt0, ts=ts,
-            cfg=cfg, projection=projection if stabilise else None, hint=_budget_hint(mech, cfg.solver, solve))
+            cfg=cfg, projection=projection if stabilise else None, hint=_budget_hint(mech, cfg.solver, solve),
+            system=system() if implicit else None)
     if stabilise and (cfg.save_ts or max_events):  # saved states interpolated inside steps: onto the constraints
         qs, qds = jax.lax.map(lambda tab: full_projection(tab[0], tab[1:], args0), (ts_, qs, qds))
     elif stabilise:  # saved at t0 and t1 only: both to round-off (t1 ends a lighter projection); together while
