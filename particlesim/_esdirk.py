@@ -42,7 +42,9 @@ __all__ = ["SecondOrderSystem", "StructuredESDIRK", "field_system", "METHODS", "
 #: The tableaux by solver name (diffrax's Kvaerno 3(2), 4(3), 5(4): explicit first stage, stiffly accurate).
 METHODS: dict[str, type] = {"kvaerno3": diffrax.Kvaerno3, "kvaerno4": diffrax.Kvaerno4,
                             "kvaerno5": diffrax.Kvaerno5}
-_DEBUG: list = []
+#: Diagnostics: a list here when a rollout is traced makes every attempted step of it append
+#: ``(h, newton_iterations, converged, matrix_reused)`` (host callback; for benchmarks, off by default).
+STEP_LOG: list | None = None
 #: A stage solve that has not converged after this many iterations fails (the step is rejected).
 MAX_ITERATIONS = 10
 #: A stage solve whose iterates grow by more than this factor per iteration fails (diverging).
@@ -247,8 +249,9 @@ class StructuredESDIRK(diffrax.AbstractAdaptiveSolver):
                 jnp.arange(1, s_))
         init = (kv0, ka0, kl0, st.eta, jnp.zeros((), dtype), jnp.asarray(True), jnp.asarray(0))
         (kv, ka, _, eta, rate, ok, iters), _ = jax.lax.scan(stage, init, rows)
-        if _DEBUG:
-            jax.debug.callback(_DEBUG.append, (h, iters, ok, reuse))
+        if STEP_LOG is not None:
+            jax.debug.callback(lambda *a: STEP_LOG.append(tuple(np.asarray(x).item() for x in a)), h, iters, ok,
+                               reuse)
         bs, be = jnp.asarray(b_sol, dtype), jnp.asarray(b_err, dtype)
         y1 = (q0 + h * (bs @ kv), v0 + h * (bs @ ka))
         y_error = (h * (be @ kv), h * (be @ ka))

@@ -28,8 +28,10 @@ def _v(x) -> str:
     return " ".join(f"{float(c):.17g}" for c in x)
 
 
-def twin_xml(timestep: float = 1e-4) -> str:
-    """MJCF text of the twin (gravity -z, RK4, no contacts)."""
+def twin_xml(timestep: float = 1e-4, spring: dict | None = None) -> str:
+    """MJCF text of the twin (gravity -z, RK4, no contacts); ``spring``: overrides of :data:`~..scenes.quarter_car.
+    SPRING` (as ``quarter_car(spring=...)``)."""
+    spring = {**qc.SPRING, **(spring or {})}
     com = {name: qc._com(name) for name in qc.TABLE1}
     p = {i: qc._p(i) for i in range(1, 11)}
     ex = qc._extra()
@@ -73,8 +75,8 @@ def twin_xml(timestep: float = 1e-4) -> str:
     </body>
   </worldbody>
   <tendon>
-    <spatial name="spring" stiffness="{qc.SPRING['stiffness']}" damping="{qc.SPRING['damping']}"
-             springlength="{qc.SPRING['free_length']}"><site site="SL"/><site site="SC"/></spatial>
+    <spatial name="spring" stiffness="{spring['stiffness']}" damping="{spring['damping']}"
+             springlength="{spring['free_length']}"><site site="SL"/><site site="SC"/></spatial>
     <spatial name="steering"><site site="SA"/><site site="TI"/></spatial>
   </tendon>
   <equality>
