@@ -14,11 +14,14 @@ constraint forces' own stiffness ``d(J^T lam)/dq`` included in ``K``), is the sa
     [[M + g C + g^2 K, J^T], [J, 0]]
 
 whose parts the system gives locally (the force elements' derivatives alone, never the whole first-order field).
-It is formed and factorised once per step at the step's start and used by every stage (modified Newton). A stage
-solve stops when the estimated remaining error ``eta |dx|`` is below ``kappa`` of the step's tolerance (Hairer &
-Wanner, Solving ODEs II, §IV.8: ``eta = theta / (1 - theta)`` from the observed contraction ``theta``, carried
-from one solve to the next), or when a correction is at the rounding floor (:data:`FLOOR`); it fails only on
-divergence (``theta > DIVERGENCE`` from the third iterate on), a non-finite iterate, or at
+It is formed at a step's start and inverted (each iteration is then one matrix-vector product), used by every stage
+of the step (modified Newton), and kept for the next step while its iterations contracted fast and the step size
+stayed near the one it was formed for (:data:`REUSE_RATE`, :data:`REUSE_SPAN`; under ``vmap`` the choice becomes a
+select and a new matrix is formed every step). A stage solve takes at least two iterations (the second measures
+the contraction ``theta``) and stops when the estimated remaining error ``theta / (1 - theta) |dx|`` is below
+``kappa`` of the step's tolerance (Hairer & Wanner, Solving ODEs II, §IV.8; ``kappa = max(10 eps / rtol,
+min(0.03, sqrt(rtol)))``, RADAU5's rule), or when a correction below ``kappa`` stops shrinking (the rounding
+floor); it fails only on divergence (``theta > DIVERGENCE`` from the third iterate on), a non-finite iterate, or at
 ``MAX_ITERATIONS``, and then the step is rejected (an infinite error estimate: the controller shrinks it).
 
 Derivatives of each stage solve come from the implicit function theorem (``jax.lax.custom_root``), with the exact
@@ -43,7 +46,8 @@ __all__ = ["SecondOrderSystem", "StructuredESDIRK", "field_system", "METHODS", "
 METHODS: dict[str, type] = {"kvaerno3": diffrax.Kvaerno3, "kvaerno4": diffrax.Kvaerno4,
                             "kvaerno5": diffrax.Kvaerno5}
 #: Diagnostics: a list here when a rollout is traced makes every attempted step of it append
-#: ``(h, newton_iterations, converged, matrix_reused)`` (host callback; for benchmarks, off by default).
+#: ``(h, newton_iterations, converged, matrix_reused)`` (host callback; single rollouts, not under ``vmap``; for
+#: benchmarks, off by default).
 STEP_LOG: list | None = None
 #: A stage solve that has not converged after this many iterations fails (the step is rejected).
 MAX_ITERATIONS = 10
@@ -65,8 +69,11 @@ class SecondOrderSystem(eqx.Module):
     ``matrix(t, q, v, lam, g, args, modes) -> (n + m, n + m)``: their Newton matrix at ``(q, v)``.
     ``modes(t, q, v, args)``: the law of each switching element (a tyre in contact or not, ...) at a state, or
     None: each stage solve holds the laws read at its starting value, so that its equations are smooth (Newton's
-    method does not converge across a jump of the force); a switch between stages shows in the error estimate,
-    and the controller shortens the step around it as it would for an explicit solver.
+    method does not converge across a jump of the force). Stages on both sides of a switch see different laws,
+    which the error estimate shows; a stage whose solution lies just across a surface from its starting value keeps
+    the starting law (an error of the order of the step's, as an explicit solver stepping across the switch).
+    ``least_squares``: the multipliers may be redundant (their tangent systems are solved in the least-squares
+    sense).
     ``n_mult``: ``m``, the number of multipliers (0 without constraints).
     """
 
@@ -75,6 +82,7 @@ class SecondOrderSystem(eqx.Module):
     matrix: Callable = eqx.field(static=True)
     n_mult: int = eqx.field(static=True)
     modes: Callable | None = eqx.field(static=True, default=None)
+    least_squares: bool = eqx.field(static=True, default=False)
 
 
 def _predictor(c):
@@ -108,11 +116,10 @@ def _tableau(method: str):
 
 
 class _State(eqx.Module):
-    """Carried from one accepted step to the next: ``eta`` (the last stage solve's ``theta / (1 - theta)``), the
-    inverse Newton matrix ``inv`` formed with ``g``, the slowest contraction ``rate`` its last step saw, and whether
-    it may be reused (``valid``)."""
+    """Carried from one accepted step to the next: the inverse Newton matrix ``inv`` formed with ``g``, the largest
+    over the last step's stage solves of their final contraction (``rate``), and whether it may be reused
+    (``valid``)."""
 
-    eta: Any
     inv: Any
     g: Any
     rate: Any
@@ -143,8 +150,7 @@ class StructuredESDIRK(diffrax.AbstractAdaptiveSolver):
         q0 = y0[0]
         size = q0.shape[0] + self.system.n_mult
         zero = jnp.zeros((), q0.dtype)
-        return _State(eta=jnp.ones((), q0.dtype), inv=jnp.zeros((size, size), q0.dtype), g=zero, rate=zero,
-                      valid=jnp.asarray(False))
+        return _State(inv=jnp.zeros((size, size), q0.dtype), g=zero, rate=zero, valid=jnp.asarray(False))
 
     def func(self, terms, t0, y0, args):
         return terms.vf(t0, y0, args)
@@ -187,7 +193,7 @@ class StructuredESDIRK(diffrax.AbstractAdaptiveSolver):
         def norm(dv):  # RMS of the velocity correction and the position correction it implies, scaled
             return jnp.sqrt(0.5 * (jnp.mean((dv / sv) ** 2) + jnp.mean((g * dv / sq) ** 2)))
 
-        def newton(f, x0, eta0):
+        def newton(f, x0):
             def cond(c):
                 _, k, _, _, _, done, fail = c
                 return ~done & ~fail & (k < MAX_ITERATIONS)
@@ -200,23 +206,31 @@ class StructuredESDIRK(diffrax.AbstractAdaptiveSolver):
                 theta = size / prev
                 eta = jnp.where(k > 0, theta / jnp.maximum(1.0 - theta, eps), eta)
                 contracting = (k > 0) & (theta < 1.0)
-                # Converged: the remaining error estimated below kappa, or a correction so far below kappa that it
-                # is at the rounding floor, where ratios of corrections no longer measure contraction.
-                done = (size <= FLOOR * kappa) | (contracting & (eta * size <= kappa))
+                # Converged: the remaining error estimated below kappa; or a correction already below kappa that
+                # no longer shrinks (the rounding floor, where ratios of corrections measure noise, not
+                # contraction: at tight tolerances it lies above kappa's own rounding term); or a correction so far
+                # below kappa that it is at that floor.
+                floor = (k > 0) & ~contracting & (size <= kappa)
+                done = (size <= FLOOR * kappa) | (contracting & (eta * size <= kappa)) | floor
                 # Diverging: judged from the third iterate on; the first correction starts from predicted
                 # multipliers, and the second may exceed it while the iteration converges.
-                fail = ~jnp.isfinite(size) | ((k > 1) & (theta > DIVERGENCE))
+                fail = ~jnp.isfinite(size) | ((k > 1) & (theta > DIVERGENCE) & ~done)
                 rate = jnp.where((k > 0) & (size > FLOOR * kappa), theta, 0.0)
                 return x, k + 1, size, eta, rate, done, fail
 
-            start = (x0, 0, jnp.asarray(jnp.inf, dtype), jnp.maximum(eta0, eps) ** 0.8, jnp.zeros((), dtype),
-                     False, False)
-            x, k, _, eta, rate, done, _ = jax.lax.while_loop(cond, body, start)
-            # aux values as floats: custom_root gives its auxiliary outputs tangents of their own dtype
-            return x, jax.lax.stop_gradient((done.astype(dtype), eta, rate, k.astype(dtype)))
+            start = (x0, 0, jnp.asarray(jnp.inf, dtype), jnp.ones((), dtype), jnp.zeros((), dtype), False, False)
+            x, k, _, _, rate, done, _ = jax.lax.while_loop(cond, body, start)
+            # A failed solve returns its starting value (finite: the step is rejected, and the derivative pass
+            # then solves a finite tangent system instead of one at a diverged iterate). Aux values as floats:
+            # custom_root gives its auxiliary outputs tangents of their own dtype.
+            x = jnp.where(done, x, x0)
+            return x, jax.lax.stop_gradient((done.astype(dtype), rate, k.astype(dtype)))
 
         def tangent_solve(lin, y):  # the exact Jacobian of the stage equations, for derivatives only
-            return jnp.linalg.solve(jax.jacfwd(lin)(y), y)
+            jac = jax.jacfwd(lin)(y)
+            if sys_.least_squares:  # redundant multipliers: unique velocities, minimum-norm multipliers
+                return jnp.linalg.lstsq(jac, y)[0]
+            return jnp.linalg.solve(jac, y)
 
         s_ = a_tab.shape[0]
         kv0 = jnp.zeros((s_, n), dtype).at[0].set(v0)
@@ -224,7 +238,7 @@ class StructuredESDIRK(diffrax.AbstractAdaptiveSolver):
         kl0 = jnp.zeros((s_, m), dtype).at[0].set(lam0)
 
         def stage(carry, row):
-            kv, ka, kl, eta, rate, ok, iters = carry
+            kv, ka, kl, rate, ok, iters = carry
             a_i, p_i, c_i, i = row
             zq = q0 + h * (a_i @ kv)
             zv = v0 + h * (a_i @ ka)
@@ -236,19 +250,18 @@ class StructuredESDIRK(diffrax.AbstractAdaptiveSolver):
             def f(x):
                 return sys_.residual(t_i, zq + g * x[:n], x[:n], x[n:], zv, g, args, modes)
 
-            x, (done, eta, rate_i, k) = jax.lax.custom_root(f, x0, lambda f_, x_: newton(f_, x_, eta),
-                                                            tangent_solve, has_aux=True)
+            x, (done, rate_i, k) = jax.lax.custom_root(f, x0, newton, tangent_solve, has_aux=True)
             done, k = done > 0.5, k.astype(iters.dtype)
             v = x[:n]
             kv = kv.at[i].set(v)
             ka = ka.at[i].set((v - zv) / g)
             kl = kl.at[i].set(x[n:] / g)
-            return (kv, ka, kl, eta, jnp.maximum(rate, rate_i), ok & done, iters + k), None
+            return (kv, ka, kl, jnp.maximum(rate, rate_i), ok & done, iters + k), None
 
         rows = (jnp.asarray(a_tab[1:], dtype), jnp.asarray(p_tab[1:], dtype), jnp.asarray(c_tab[1:], dtype),
                 jnp.arange(1, s_))
-        init = (kv0, ka0, kl0, st.eta, jnp.zeros((), dtype), jnp.asarray(True), jnp.asarray(0))
-        (kv, ka, _, eta, rate, ok, iters), _ = jax.lax.scan(stage, init, rows)
+        init = (kv0, ka0, kl0, jnp.zeros((), dtype), jnp.asarray(True), jnp.asarray(0))
+        (kv, ka, _, rate, ok, iters), _ = jax.lax.scan(stage, init, rows)
         if STEP_LOG is not None:
             jax.debug.callback(lambda *a: STEP_LOG.append(tuple(np.asarray(x).item() for x in a)), h, iters, ok,
                                reuse)
@@ -257,7 +270,7 @@ class StructuredESDIRK(diffrax.AbstractAdaptiveSolver):
         y_error = (h * (be @ kv), h * (be @ ka))
         y_error = jax.tree.map(lambda e: jnp.where(ok, e, jnp.inf), y_error)
         dense_info = dict(y0=y0, y1=y1, k=(h * kv, h * ka))
-        state = _State(eta=jnp.where(ok, eta, st.eta), inv=inv, g=g_inv, rate=rate, valid=ok)
+        state = _State(inv=inv, g=g_inv, rate=rate, valid=ok)
         return y1, y_error, dense_info, state, diffrax.RESULTS.successful
 
 

@@ -407,7 +407,8 @@ class _Projected(diffrax.AbstractAdaptiveSolver, diffrax.AbstractWrappedSolver):
 def _solver_and_controller(cfg: Settings, rtol, atol, projection, system=None):
     """The solver (wrapped with the projection, if any) and the PID controller of ``cfg``. An implicit solver
     given the system's structure (``system``, a :class:`~particlesim._esdirk.SecondOrderSystem`) is the
-    structured ESDIRK of :mod:`particlesim._esdirk` with the same tableau; without it, diffrax's own."""
+    structured ESDIRK of :mod:`particlesim._esdirk` with the same tableau; without it (or with the backsolve
+    adjoint), diffrax's own."""
     implicit = cfg.solver in IMPLICIT_SOLVERS
     controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=cfg.pid[0], icoeff=cfg.pid[1],
                                        dcoeff=cfg.pid[2], dtmax=cfg.max_step)
@@ -419,7 +420,9 @@ def _solver_and_controller(cfg: Settings, rtol, atol, projection, system=None):
         kw["scan_kind"] = "lax"
     elif isinstance(cfg.adjoint, diffrax.DirectAdjoint):
         kw["scan_kind"] = "bounded"
-    if implicit and system is not None:
+    # The structured solver integrates the forward system only: the continuous adjoint's backward solve (a
+    # different system, in diffrax's own terms) keeps diffrax's Kvaerno.
+    if implicit and system is not None and not isinstance(cfg.adjoint, diffrax.BacksolveAdjoint):
         solver = StructuredESDIRK(system, rtol, atol, method=cfg.solver)
     else:
         if implicit:  # chord-Newton stage solves at the controller's tolerances (diffrax's default, stated here)

@@ -74,8 +74,9 @@ def stage_residual(mech: Mechanism, prep: Prepared, t, q, v, lam_g, zv, g, baumg
                             apply_j(prep, r, dv.reshape(-1, 3)) - g * _gamma(mech, prep, r, q, v, baumgarte)])
 
 
-def newton_matrix(mech: Mechanism, prep: Prepared, t, q, v, lam, g, contact=None):
-    """``[[M + g C + g^2 K, J^T], [J, 0]]`` at ``(q, v)`` with multipliers ``lam`` (module docstring)."""
+def newton_matrix(mech: Mechanism, prep: Prepared, t, q, v, lam, g, contact=None, baumgarte: float = 0.0):
+    """``[[M + g C + g^2 K, J^T], [J, 0]]`` at ``(q, v)`` with multipliers ``lam`` (module docstring); with Baumgarte
+    terms (rate ``b``) the constraint rows of the stage equations are ``(1 + b g)^2 J``."""
     drive = drive_at(mech, t)
     n_c = mech.n_constraints
 
@@ -92,18 +93,19 @@ def newton_matrix(mech: Mechanism, prep: Prepared, t, q, v, lam, g, contact=None
     if n_c == 0:
         return top
     j = _jmat(prep, rows(prep, q, None, drive))
+    left = j * (1.0 + baumgarte * g) ** 2 if baumgarte else j
     low = jnp.zeros((n_c, n_c), dtype=top.dtype)
     if mech.topo.least_squares:
         low = low - LSQ_RTOL * jnp.max(jnp.abs(m)) * jnp.eye(n_c, dtype=top.dtype)
-    return jnp.block([[top, j.T], [j, low]])
+    return jnp.block([[top, j.T], [left, low]])
 
 
 def stage_system(unpack, baumgarte: float, split: bool, contact_of=None, n_mult: int = 0,
-                 switching: bool = False) -> SecondOrderSystem:
+                 switching: bool = False, least_squares: bool = False) -> SecondOrderSystem:
     """The :class:`~particlesim._esdirk.SecondOrderSystem` of a rollout: ``unpack(args) -> (mech, prep, _)`` reads
     the mechanism from the solve's ``args``; ``contact_of(args)`` (or None) the one-sided elements' fixed laws of an
     evented segment; ``switching``: the mechanism has one-sided elements (tyres, bump stops), whose laws each stage
-    solve holds fixed (:class:`~particlesim._esdirk.SecondOrderSystem`)."""
+    solve holds fixed (:class:`~particlesim._esdirk.SecondOrderSystem`); ``least_squares``: redundant rows."""
     def parts(args):
         if contact_of is None:
             return unpack(args)[:2], None
@@ -119,7 +121,7 @@ def stage_system(unpack, baumgarte: float, split: bool, contact_of=None, n_mult:
 
     def matrix(t, q, v, lam, g, args, modes):
         (m, p), _ = parts(args)
-        return newton_matrix(m, p, t, q, v, lam, g, modes)
+        return newton_matrix(m, p, t, q, v, lam, g, modes, baumgarte)
 
     def modes(t, q, v, args):  # the segment's laws (evented), else each element's law read from its gap's sign
         (m, p), contact = parts(args)
@@ -127,4 +129,4 @@ def stage_system(unpack, baumgarte: float, split: bool, contact_of=None, n_mult:
             return contact
         return one_sided_gaps(m, p.wk @ q.reshape(-1, 3) + p.p0, t) < 0.0
 
-    return SecondOrderSystem(accelerations, residual_, matrix, n_mult, modes if switching else None)
+    return SecondOrderSystem(accelerations, residual_, matrix, n_mult, modes if switching else None, least_squares)

@@ -259,7 +259,8 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
     implicit = cfg.solver in _ode.IMPLICIT_SOLVERS and plan is None
 
     def system(contact_of=None):
-        return stage_system(unpack, baumgarte, split, contact_of, mech.n_constraints, n_switch > 0)
+        return stage_system(unpack, baumgarte, split, contact_of, mech.n_constraints, n_switch > 0,
+                            mech.topo.least_squares)
 
     events = None
     args0 = [leaves[i] for i in arrays]
