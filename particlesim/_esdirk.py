@@ -72,8 +72,6 @@ class SecondOrderSystem(eqx.Module):
     method does not converge across a jump of the force). Stages on both sides of a switch see different laws,
     which the error estimate shows; a stage whose solution lies just across a surface from its starting value keeps
     the starting law (an error of the order of the step's, as an explicit solver stepping across the switch).
-    ``least_squares``: the multipliers may be redundant (their tangent systems are solved in the least-squares
-    sense).
     ``n_mult``: ``m``, the number of multipliers (0 without constraints).
     """
 
@@ -82,7 +80,6 @@ class SecondOrderSystem(eqx.Module):
     matrix: Callable = eqx.field(static=True)
     n_mult: int = eqx.field(static=True)
     modes: Callable | None = eqx.field(static=True, default=None)
-    least_squares: bool = eqx.field(static=True, default=False)
 
 
 def _predictor(c):
@@ -227,10 +224,7 @@ class StructuredESDIRK(diffrax.AbstractAdaptiveSolver):
             return x, jax.lax.stop_gradient((done.astype(dtype), rate, k.astype(dtype)))
 
         def tangent_solve(lin, y):  # the exact Jacobian of the stage equations, for derivatives only
-            jac = jax.jacfwd(lin)(y)
-            if sys_.least_squares:  # redundant multipliers: unique velocities, minimum-norm multipliers
-                return jnp.linalg.lstsq(jac, y)[0]
-            return jnp.linalg.solve(jac, y)
+            return jnp.linalg.solve(jax.jacfwd(lin)(y), y)
 
         s_ = a_tab.shape[0]
         kv0 = jnp.zeros((s_, n), dtype).at[0].set(v0)

@@ -6,8 +6,8 @@ elements, each reading a few points. The Newton matrix ``[[M + g C + g^2 K, J^T]
 ``K = -d(Q - J^T lam)/dq`` and ``C = -dQ/dv``: forward-mode derivatives of the force elements and of ``J^T lam`` at
 fixed multipliers (the constraint forces' geometric stiffness, which matters where they are large: a spinning
 governor's arms, a loaded suspension), never of the constraint solve. Singular mass matrices need nothing else
-(the saddle-point matrix stays regular); redundant rows (``multipliers='least_squares'``) damp the multiplier block
-as the saddle-point solve does.
+(the saddle-point matrix stays regular). Mechanisms with redundant rows (``multipliers='least_squares'``) keep
+diffrax's Kvaerno (:mod:`.integrate`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from .._esdirk import SecondOrderSystem
-from ._algebra import LSQ_RTOL, _partner, Prepared, apply_j, drive_at, gamma, jacobian, residual, rows, velocity_target
+from ._algebra import _partner, Prepared, apply_j, drive_at, gamma, jacobian, residual, rows, velocity_target
 from .dynamics import _forces, _solve
 from .forces import generalized_point_forces, one_sided_gaps
 from .model import Mechanism
@@ -95,17 +95,15 @@ def newton_matrix(mech: Mechanism, prep: Prepared, t, q, v, lam, g, contact=None
     j = _jmat(prep, rows(prep, q, None, drive))
     left = j * (1.0 + baumgarte * g) ** 2 if baumgarte else j
     low = jnp.zeros((n_c, n_c), dtype=top.dtype)
-    if mech.topo.least_squares:
-        low = low - LSQ_RTOL * jnp.max(jnp.abs(m)) * jnp.eye(n_c, dtype=top.dtype)
     return jnp.block([[top, j.T], [left, low]])
 
 
 def stage_system(unpack, baumgarte: float, split: bool, contact_of=None, n_mult: int = 0,
-                 switching: bool = False, least_squares: bool = False) -> SecondOrderSystem:
+                 switching: bool = False) -> SecondOrderSystem:
     """The :class:`~particlesim._esdirk.SecondOrderSystem` of a rollout: ``unpack(args) -> (mech, prep, _)`` reads
     the mechanism from the solve's ``args``; ``contact_of(args)`` (or None) the one-sided elements' fixed laws of an
     evented segment; ``switching``: the mechanism has one-sided elements (tyres, bump stops), whose laws each stage
-    solve holds fixed (:class:`~particlesim._esdirk.SecondOrderSystem`); ``least_squares``: redundant rows."""
+    solve holds fixed (:class:`~particlesim._esdirk.SecondOrderSystem`)."""
     def parts(args):
         if contact_of is None:
             return unpack(args)[:2], None
@@ -129,4 +127,4 @@ def stage_system(unpack, baumgarte: float, split: bool, contact_of=None, n_mult:
             return contact
         return one_sided_gaps(m, p.wk @ q.reshape(-1, 3) + p.p0, t) < 0.0
 
-    return SecondOrderSystem(accelerations, residual_, matrix, n_mult, modes if switching else None, least_squares)
+    return SecondOrderSystem(accelerations, residual_, matrix, n_mult, modes if switching else None)

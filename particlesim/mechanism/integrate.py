@@ -254,13 +254,14 @@ def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabili
         return one_sided_gaps(m, p.wk @ q.reshape(-1, 3) + p.p0, t)
 
     n_switch = len(one_sided_names(mech))
-    # Implicit solvers take their Newton matrix from the mechanism's structure (:mod:`.implicit`); the chain path's
-    # O(N) solve has no saddle-point form, so it keeps diffrax's own.
-    implicit = cfg.solver in _ode.IMPLICIT_SOLVERS and plan is None
+    # Implicit solvers take their Newton matrix from the mechanism's structure (:mod:`.implicit`). Diffrax's own
+    # stays with the chain path (its O(N) solve has no saddle-point form) and with redundant rows (least-squares
+    # multipliers: the saddle-point matrix is singular, and damping its multiplier block left the stage solves
+    # short of tight tolerances on a doubly closed four-bar).
+    implicit = cfg.solver in _ode.IMPLICIT_SOLVERS and plan is None and not mech.topo.least_squares
 
     def system(contact_of=None):
-        return stage_system(unpack, baumgarte, split, contact_of, mech.n_constraints, n_switch > 0,
-                            mech.topo.least_squares)
+        return stage_system(unpack, baumgarte, split, contact_of, mech.n_constraints, n_switch > 0)
 
     events = None
     args0 = [leaves[i] for i in arrays]

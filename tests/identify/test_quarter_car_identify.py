@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from particlesim import _ode
 from particlesim.identify.quarter_car import FITTED, chassis_traces, fit_quarter_car
 from particlesim.scenes.quarter_car import SPRING, TABLE1, TYRE
 
@@ -61,6 +62,7 @@ def test_quarter_car_fit_recovers_constants_and_masses(model, data):
     z_true = data[0]
     assert np.all(np.ptp(z_true, axis=1) > 0.1)  # both runs settle (sag ~0.2 m and ~0.5 m): real responses
     noisy = z_true + NOISE_SIGMA * np.random.default_rng(11).standard_normal(z_true.shape)
+    traces = _ode.TRACES["trace_model residual_jacobian"]
     fit = fit_quarter_car(model, noisy, STARTS, sigma=NOISE_SIGMA)
     rel = np.abs(fit.p / TRUE - 1)
     print(f"\n  {fit.evaluations} evaluations (2 starts each), steps {fit.steps}, converged {fit.converged}\n"
@@ -69,7 +71,8 @@ def test_quarter_car_fit_recovers_constants_and_masses(model, data):
     assert np.all(rel < NOISY_RTOL), rel
     assert np.all(rel < NOISE_BOUND_SIGMAS * fit.rel_std), (rel, fit.rel_std)
     assert abs(fit.rms / NOISE_SIGMA - 1) < 0.15  # the residual is the noise, not model error
-    assert model.residual_jacobian._cache_size() == 1  # every evaluation and start reused one compile
+    # every evaluation and start reused one compile (a trace counter: a jit's cache may evict in a long process)
+    assert _ode.TRACES["trace_model residual_jacobian"] - traces <= 1
 
 
 def test_quarter_car_identification_refuses_bad_input(model):
