@@ -1,8 +1,8 @@
 """Public functions of one model and one state as compiled entries.
 
 A function such as :func:`particlesim.tree.mass_matrix` is a few hundred small array operations. Called eagerly
-(from a notebook, a control loop, a script) JAX would dispatch them one by one: 30-170 ms per call on Krang,
-20-280 ms for the quarter car's mechanism functions. :func:`compiled` turns such a function into one compiled entry
+(from a notebook, a control loop, a script) JAX would dispatch them one by one, at a cost far above their
+arithmetic's. :func:`compiled` turns such a function into one compiled entry
 (:func:`particlesim._ode.cached`): compiled once per model structure (static fields: topology, joint kinds, names,
 force-law callables), argument shapes and static settings (a link name, a frame, ``smooth_friction``); new
 parameter values and states reuse the compiled program, and under an outer ``jit``, ``vmap`` or ``grad`` the entry

@@ -66,13 +66,10 @@ ADJOINTS: dict[str, Callable[[], diffrax.AbstractAdjoint]] = {
     "backsolve": diffrax.BacksolveAdjoint,
 }
 
-# PID coefficients (pcoeff, icoeff, dcoeff). Explicit solvers: the plain integral controller (diffrax's own default).
-# Against the PI (0.4, 1, 0) used before, the cheapest run meeting each work-against-precision target rejected
-# fewer steps and cost the same or less on every scene measured (same machine, one afternoon; steps accepted +
-# rejected): Krang Dopri8 250 -> 181 steps, 45.9 -> 33.3 ms; Nikravesh 2.1 -> 1.8 ms; Andrews' squeezer Dopri8
-# 10.4 -> 7.0 ms; the N-four-bar Dopri8 239 -> 224 steps; chains and Bricard's linkage equal within noise; the stiff
-# flyball governor's Tsit5 (its stability limit) 2 % more steps, the same time. Implicit
-# solvers: a less sensitive PI controller, for the stiff problems they are used for (diffrax's guidance).
+# PID coefficients (pcoeff, icoeff, dcoeff). Explicit solvers: the plain integral controller (diffrax's own
+# default), which met every work-against-precision target with fewer rejected steps than a PI controller
+# (benchmarks/results/wp_*.json). Implicit solvers: a less sensitive PI controller, for the stiff problems they are
+# used for (diffrax's guidance).
 _PID_EXPLICIT = (0.0, 1.0, 0.0)
 _PID_IMPLICIT = (0.3, 0.3, 0.0)
 
@@ -293,9 +290,9 @@ def check_finite_eager(entry: str, model, groups: Callable[[], list], more: Call
     every leaf was concrete (so that ``more``'s checks were made and the program need not repeat them). A model whose
     array leaves are all concrete JAX arrays (immutable) is checked once and remembered while
     it lives, with its leaves: a later call with the same object and the very same leaves (a container inside it,
-    such as a dict, may have been changed in place) skips the check. Labelling and checking every parameter costs
-    about 0.1 ms, a fifth of a short rollout's call. NumPy leaves (mutable in place) and traced ones are checked on
-    every call."""
+    such as a dict, may have been changed in place) skips the check. Labelling and checking every parameter costs a
+    noticeable part of a short rollout's call. NumPy leaves (mutable in place) and traced ones are checked on every
+    call."""
     leaves = jax.tree.leaves(model)
     if remembered(_PASSED, model, leaves):
         return True

@@ -23,15 +23,13 @@ __all__ = ["COMPILE_OPTIONS", "BATCH_OPTIONS", "WIDE_BATCH_OPTIONS", "cpu_option
 #: XLA options for every compiled entry on the CPU (per executable: nothing global is changed), wide tree batches
 #: excepted (:data:`WIDE_BATCH_OPTIONS`). Elementwise and loop
 #: code is emitted by XLA's direct LLVM emitters rather than its MLIR fusion emitters, which compile about twice as
-#: fast for programs like ours (hundreds of small fusions): Krang's 2 s rollout 3.2 -> 1.4 s, the quarter car's
-#: 4.3 -> 2.4 s, Krang's batched forward dynamics 1.9 -> 1.1 s, a 100-link chain 1.3 -> 0.6 s; run times equal within
-#: the machine's noise in interleaved runs (median ratios 0.92-1.04). Results agree to round-off (tested).
+#: fast for programs like ours (hundreds of small fusions) and run as fast. Results agree to round-off (tested).
 COMPILE_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 #: Added for batch entries (and part of :data:`WIDE_BATCH_OPTIONS`): reductions go to the same YNNPACK kernels XLA
 #: already uses for dots and elementwise loops:
-#: the articulated-body sweeps of a batch, whose reductions run over the trailing batch axis, cost 5-20 % less per
-#: state in interleaved runs (Krang, 1024 states); one-state programs gain nothing, so only the batch entry uses them.
+#: the articulated-body sweeps of a batch, whose reductions run over the trailing batch axis, cost less per state;
+#: one-state programs gain nothing, so only the batch entry uses them.
 BATCH_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type":
                  "LIBRARY_FUSION_TYPE_DOT,LIBRARY_FUSION_TYPE_ELTWISE,LIBRARY_FUSION_TYPE_REDUCE"}
 
@@ -41,11 +39,9 @@ BATCH_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type":
 #: :func:`~particlesim.tree.aba.batch_chunks`)
 #: take XLA's fusion emitters (set explicitly, so that an ``XLA_FLAGS`` turning them off process-wide does not change
 #: these programs) with :data:`BATCH_OPTIONS`: YNNPACK runs most of the sweeps there and the
-#: operations left to XLA run 3-5 % faster from its fusion emitters, with no slower compile (Krang on one core, per
-#: state, interleaved: 712 / 1024 / 1408 / 2048 / 4096 states 5.37 / 6.25 / 6.32 / 5.91 / 5.80 us against 5.61 / 6.68
-#: / 6.52 / 6.45 / 6.09 us with :data:`COMPILE_OPTIONS`; compile 4.2-5.6 against 5.2-5.9 s). Below about 700 states
-#: XLA compiles more of the sweeps itself, and its fusion emitters cost seconds more there (16 / 264 states: 15.4 /
-#: 10.3 s against 10.8 / 8.7 s), so narrower batches keep :data:`COMPILE_OPTIONS`.
+#: operations left to XLA run faster from its fusion emitters, with no slower compile. Below about 700 states XLA
+#: compiles more of the sweeps itself, where its fusion emitters compile slower, so narrower batches keep
+#: :data:`COMPILE_OPTIONS`.
 WIDE_BATCH_OPTIONS = {"xla_cpu_use_fusion_emitters": True, **BATCH_OPTIONS}
 _GROUPS = {False: (COMPILE_OPTIONS,), True: (COMPILE_OPTIONS, BATCH_OPTIONS), "wide": (WIDE_BATCH_OPTIONS,)}
 

@@ -56,7 +56,8 @@ def _check_state(params: Any, q0: Array, qd0: Array) -> None:
                          f"the model has nq = {nq}, nv = {nv}")
     _ode.check_state((q0, qd0), ("q0", "qd0"))
     # A plain method is called through the class: an equinox module wraps a bound method it hands out in a new
-    # module (~50 us per call). Anything else (a static or class method, a field, a property) as the instance has it.
+    # module (a cost on every call). Anything else (a static or class method, a field, a property) as the instance
+    # has it.
     if isinstance(inspect.getattr_static(type(params), "check_configuration", None), types.FunctionType):
         type(params).check_configuration(params, q0)
     elif (check := getattr(params, "check_configuration", None)) is not None:
@@ -72,8 +73,8 @@ _SHAPES_PASSED_MAX = 256
 def _check_output_shapes(dynamics, control, params, q0, qd0, t0) -> None:
     """``ModelError`` unless ``control`` and ``dynamics`` return one entry per velocity coordinate, found by
     tracing them (``jax.eval_shape``). Shapes depend on the structure alone (the functions, the parameters' tree and
-    leaf shapes, the state's shapes), so a structure that passed is remembered: tracing Krang's dynamics costs about
-    0.75 ms, half of a one-step rollout's call."""
+    leaf shapes, the state's shapes), so a structure that passed is remembered: tracing the dynamics costs a large
+    part of a short rollout's call."""
     key = None
     if top_level():
         leaves, treedef = jax.tree.flatten((dynamics, control, params))

@@ -250,8 +250,7 @@ def _mm(a: Array, b: Array) -> Array:
     fuses into one loop reading ``a`` and ``b`` once (a dot call costs more than the arithmetic at these sizes);
     a matrix product beyond. Not the broadcast product ``a[:, :, None] * b[None]`` summed over F: under ``vmap``
     over parameter sets (``a`` batched) XLA hoists its broadcast out of the integrator's loop as a (B, 2D, F, 3)
-    array that every evaluation then reads from memory (8 identical quarter cars vmapped took 12.0 ms each with
-    it, 4.8-5.1 ms without; one alone takes about 6 ms)."""
+    array that every evaluation then reads from memory (vmapped quarter cars ran more than twice as slow with it)."""
     f = a.shape[1]
     if f == 0 or f > MM_UNROLL:
         return a @ b
@@ -262,8 +261,8 @@ def _mm(a: Array, b: Array) -> Array:
 def _outer_sum(a: Array, b: Array) -> Array:
     """``a @ b`` as the sum of the outer products of ``a``'s columns with ``b``'s rows (:func:`_mm`). Its tangent is
     the broadcast product summed (``da @ b + a @ db`` written as before): differentiated as written, each term's
-    transpose is a padded copy of ``a``'s shape, which made the quarter car's reverse-mode gradient compile in 22 s
-    instead of 16 and run 1.2x slower; with matrix products for the tangent it ran 1.4x slower. A tangent that
+    transpose is a padded copy of ``a``'s shape, which made the quarter car's reverse-mode gradient compile and run
+    slower; with matrix products for the tangent it ran slower still. A tangent that
     is zero (``a`` = the rows' constant matrix, when the gradient is not taken in the geometry) is skipped. Left
     as it is: that tangent is the broadcast product again, so a gradient *vmapped* over parameter sets still meets
     the hoisted broadcast _mm avoids in the forward pass (not measured)."""
@@ -339,19 +338,13 @@ def velocity_target(prep: Prepared, r: Rows) -> Float[Array, " C"] | float:
 
 #: Up to this many dot rows, :func:`schur` forms its Gram products as outer products of the three coordinates (one
 #: elementwise kernel, the row vectors behind an optimisation barrier); beyond, as the dense product ``E E^T``.
-#: Single rollouts, this rule against ``E E^T`` everywhere (medians of 25, one process per variant, interleaved):
-#: Nikravesh AA (5 rows) 3.07 -> 2.71 ms, 3-link spherical chain (18) 6.08 -> 5.19, 4-link revolute (20) 2.20 ->
-#: 2.04, 6-link (30) 5.46 -> 4.71; with outer products the quarter car (33 rows) ran 16.3 -> 15.9 ms and an 8-link
-#: chain (40) 9.51 -> 8.39 ms. The quarter car was first kept on ``E E^T`` because its reverse-mode gradient then cost
-#: 5.4-5.7x its rollout against 5.0x; since the multipliers' solve is differentiated with its matrix applied
-#: (:func:`schur_solve`) the two forms give it alike (4.49 and 4.52x against 4.50 and 4.38x, rollouts 19.5-19.7
-#: against 20.2-20.4 ms; jacfwd 16.4-17.0x against 16.3-16.8x; two processes each, alternating). A least-squares
-#: mechanism, whose multipliers are still differentiated through the factorisation (:func:`solve_schur`): the 8-link
-#: revolute chain built with ``multipliers="least_squares"`` (40 rows; Tsit5, 0.3 s), outer products against
-#: ``E E^T``: rollout 3.18-3.20 against 3.44-3.66 ms, reverse gradient in the body masses 22.2-24.0 against 21.4-22.4
-#: ms and its compile 20.9 against 17.5-18.2 s, gradients equal to 1e-13 (two processes each, alternating); kept,
-#: for the rollouts. Not measured: sizes beyond 40 rows, the exact-multiplier 8-link chain's gradient, gradients
-#: vmapped over parameter sets.
+#: Outer products ran single rollouts faster than ``E E^T`` at every size measured (Nikravesh AA, spherical and
+#: revolute chains, the quarter car; 5 to 40 rows), and since the multipliers' solve is differentiated with its matrix
+#: applied (:func:`schur_solve`) the two forms' gradients cost alike. A least-squares mechanism, whose multipliers are
+#: still differentiated through the factorisation (:func:`solve_schur`), keeps them too, for the rollouts, although
+#: its reverse gradient ran slightly slower and compiled slower (the 8-link revolute chain, 40 rows; gradients equal
+#: to round-off). Not measured: sizes beyond 40 rows, the exact-multiplier 8-link chain's gradient, gradients vmapped
+#: over parameter sets.
 GRAM_OUTER_MAX_ROWS = 40
 
 
@@ -364,8 +357,7 @@ def schur(prep: Prepared, r: Rows) -> Float[Array, "C C"]:
     if n <= GRAM_OUTER_MAX_ROWS:
         # Outer products of the three coordinates, one elementwise kernel, E behind an optimisation barrier:
         # without it XLA fuses the rows' products (_mm, which E is made of) into this kernel and recomputes them
-        # for every entry (this form without the barrier: a 6-link chain's rollout 7.3 ms against 5.4 with E E^T
-        # and 4.7 with the barrier; at every size, a quarter car's 55 ms against 16).
+        # for every entry (without the barrier this form ran slower than E E^T at every size).
         e = jax.lax.optimization_barrier(e)
         eb = (e[:n], e[n:])
         h = sum(ab[i, :, j, :] * _outer_sum(eb[i], eb[j].T) for i in range(2) for j in range(2))
@@ -409,9 +401,7 @@ def apply_minv_jt(prep: Prepared, r: Rows, lam: Float[Array, " C"]) -> Float[Arr
     # A matrix product rather than a broadcast product summed over rows: see _mm (the same hoisted broadcast). Its
     # constant factor is stored transposed (F, 2D), so that the product inside the integrator's loop contracts its
     # rows' trailing axis: written as ``(d @ minv).T @ ls``, XLA kept the transpose inside the product (a dot on the
-    # leading axes, not handed to YNNPACK): the 4-link chain's 2 s rollout (Dopri8, rtol 1e-4) 1.31-1.53 ms against
-    # 1.24-1.28 ms stored transposed (medians of 150 calls, one core, three interleaved pairs of processes); the
-    # quarter car within the noise.
+    # leading axes, not handed to YNNPACK), which ran a 4-link chain's rollout slower (the quarter car's alike).
     out = prep.minv_dt @ ls + jnp.sum(prep.jw_lin * lam[n:n + nl, None, None], axis=0)
     if r.drive is None:
         return out

@@ -8,11 +8,10 @@ state serves both: simplified-Newton position iterations with that factor, then 
 projected positions. Between steps one of each: the factor is exact at the stepped state, so the first position
 iteration leaves a residual of the order of the square of the correction, i.e. of the local error squared, and the
 velocity pass likewise (it contracts the residual by the size of the position correction) — far below the step's own
-error, and removed again at the next step, so nothing accumulates. Saved outputs get two of each, which reach
-round-off (the tests measure it): all of them when saved at given times (which fall inside steps) or with events;
-else the initial and the final state. A second iteration of each between steps cost 8 % of a quarter car's rollout
-(5.79 against 5.37 ms, Tsit5 at rtol 4e-3, medians of 90 interleaved calls in one process; 5.91 against 5.45 ms
-through ``simulate_mechanism`` in alternating processes) and changed its end position by 4e-14 m. The projection
+error, and removed again at the next step, so nothing accumulates (a second iteration of each between steps costs
+about 8 % of a quarter car's rollout and moves its end position by rounding). Saved outputs get two of each, which
+reach round-off (the tests measure it): all of them when saved at given times (which fall inside steps) or with
+events; else the initial and the final state. The projection
 leaves the method's order intact (the correction is of the size of the local error), needs no tuning constant
 (unlike Baumgarte's), and is a smooth function of state and parameters, so gradients pass through it. Its iteration
 count is fixed rather than a tolerance-driven loop because a data-dependent loop cannot be differentiated in reverse
@@ -214,7 +213,7 @@ def _budget_hint(mech: Mechanism, solver: str, solve: str) -> str:
 def _simulate(mech, q0, qd0, t0, t1, rtol, atol, dt0, ts, time_bad, cfg, stabilise, baumgarte, solve,
               max_events=0, warn_switch=False, check_physical=True):
     # Non-physical values are looked for here only when the eager check could not see them (traced leaves): the
-    # bodies' test costs ~40 us per call (a 3 x 3 eigendecomposition per body), a tenth of a one-step rollout.
+    # bodies' test (a 3 x 3 eigendecomposition per body) is a noticeable part of a short rollout's cost.
     param_bad = _ode.merge_checks(_ode.check_finite("simulate_mechanism", parameter_groups(mech)),
                                   physical_checks(mech) if check_physical else None)
     q0, qd0 = _ode.runtime_checks((q0, qd0), time_bad, param_bad, "simulate_mechanism", "(q0, qd0)")

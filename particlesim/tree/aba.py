@@ -84,28 +84,22 @@ def _children(parents: tuple) -> np.ndarray:
 UNROLL_LINKS = 32
 
 
-#: (Measured on Krang before it took the shallow rule below; among deeper trees only chains of 18 and 25 links were
-#: measured against chunks of about 128 states.) A batch of states of a deep tree (written-out sweeps, more than
-#: :data:`SHALLOW_DEPTH` links from root to tip) runs
+#: A batch of states of a deep tree (written-out sweeps, more than :data:`SHALLOW_DEPTH` links from root to tip) runs
 #: the sweeps on chunks of about this many states, one chunk after another, once it is larger than
 #: :data:`BATCH_CHUNK_ABOVE` (:func:`batch_chunks`). A link's articulated inertias for 1024 states take 295 kB,
-#: within a core's L2 cache on the CPUs measured; the whole batch at once costs more per state as it grows (Krang on
-#: one core, per state: 6.1 us for 1024 states, 7.2 us for 1536, 10 us for 2048, 21-23 us for 4096-8192; in chunks
-#: of about 1024, 6.3-6.5 us at every size). Smaller batches cost more per state (6.2-7.6 us from 72 to 520 states,
-#: 11 us at 40, once padded off multiples of 64 lanes: :func:`batch_lanes`).
+#: within a core's L2 cache; the whole batch at once costs more per state as it grows, and smaller batches cost more
+#: per state too (even padded off multiples of 64 lanes: :func:`batch_lanes`). Chosen on Krang before it took the
+#: shallow rule below; of deeper trees only chains of 18 and 25 links were compared (against chunks of about 128).
 BATCH_CHUNK = 1024
 #: Batches up to this size run whole (their chunks would fall to about 700 states).
 BATCH_CHUNK_ABOVE = 1408
 #: Shallow trees (at most :data:`SHALLOW_DEPTH` links from the root to any tip) run a batch in chunks of about
 #: :data:`SHALLOW_CHUNK` states instead (136 lanes for 1024 states: :func:`batch_lanes`), so that the three sweeps
 #: work on one chunk's link quantities at a time (estimated 1.5 MB, near a core's 1 MB L2 cache here, against 12 MB
-#: for 1024 states; that this is the reason is a hypothesis). Measured in one process per tree, one core,
-#: interleaved, median per state against the previous rule (the whole batch up to 1408 states, chunks of about 1024
-#: beyond; at 2048 states two of them): Krang (18 links, depth 10) 0.83-0.85x at 1024 states for chunks of 114-147
-#: states (0.91 of 103, 1.0 of 64-72 or 256), 0.79x at 705 and 2048, 0.72x at 300, 0.99x at 192; serial chains of 7
-#: and 12 links 0.69x and 0.80x at 1024; chains of 18 and 25 links 1.08x and 1.26x (slower, why not established: the
-#: bound on the depth). Compiled with :data:`particlesim._xla.BATCH_OPTIONS` (not wide): Krang's 1024 states 5.26
-#: against 5.55 us per state with the wide options, compile 7.6 against 12.9 s.
+#: for 1024 states; that this is the reason is a hypothesis). Per state, faster than the deep trees' rule
+#: (:data:`BATCH_CHUNK`) on Krang (18 links, depth 10) and serial chains of 7 and 12 links, slower on chains of 18 and
+#: 25 links (why is not established), hence the bound on the depth. Compiled with
+#: :data:`particlesim._xla.BATCH_OPTIONS` (not wide), which ran and compiled faster on Krang than the wide options.
 SHALLOW_DEPTH = 12
 SHALLOW_CHUNK = 128
 #: Chunks of at least this many states (of a tree up to :data:`UNROLL_LINKS` links: the whole batch or every chunk
@@ -116,9 +110,8 @@ WIDE_BATCH = 705
 
 #: Trees beyond :data:`UNROLL_LINKS` links loop over links with stacked buffers of every link's row for the whole
 #: chunk (about 1 kB per link and state); their chunks hold at most about this many link-states (and 8 to
-#: :data:`LOOP_CHUNK_MAX` states, a multiple of 4). Chains of 50 / 100 / 200 links, batch of 264 states, one core,
-#: per state: whole 23 / 121-129 / 266 us; in chunks of 88 13 / 27 us, of 44 at 200 links 68 us (66 states: 16 / 31
-#: / 88 us; 132: 23 / 42 / 214 us; `abaInParallel` 16 / 31-33 / 62-65 us).
+#: :data:`LOOP_CHUNK_MAX` states, a multiple of 4): chains of 50, 100 and 200 links ran fastest per state in such
+#: chunks, ahead of the whole batch and of smaller or larger chunks.
 LOOP_CHUNK_LINK_STATES = 8800
 LOOP_CHUNK_MAX = 88
 
@@ -153,12 +146,9 @@ def state_by_state(size: int, n_links: int) -> bool:
     rather than through the batched sweeps: at most one state per link, for trees whose sweeps are written out (up to
     :data:`UNROLL_LINKS` links; :func:`~.dynamics.forward_dynamics` applies it to arrays passed from Python only). The
     written-out sweeps are about 29 small kernels per link, paid once per call whatever the batch, and below about 700
-    states XLA compiles most of them with its own emitters: 6-12 s for Krang's sweeps against under a second for the
-    loop. Measured (jitted, interleaved; one core / unpinned): Krang 12 states 245 / 266 us per call state by state
-    against 332 / 351 us through the sweeps, 18 states 318 / 346 against 375 / 410 us, 36 states 551 against 454 us
-    (the sweeps ahead from about 30 states, 1.6 per link); serial chains of 7 / 12 links, 7 states 190 against 256 us
-    and 144 against 448 us, 14 states 215 against 188 us and 237 against 485 us (unpinned). A bound of one state per
-    two links (used before) left 10-18 Krang states on the sweeps: slower, and compiled in 7 s instead of 0.8 s."""
+    states XLA compiles most of them with its own emitters, which takes seconds where the loop compiles in under one.
+    The loop measured faster up to about one state per link on Krang and on serial chains of 7 and 12 links; a bound
+    of one state per two links left some of Krang's small batches on the sweeps, slower to run and to compile."""
     return 0 < size <= n_links <= UNROLL_LINKS
 
 
@@ -175,8 +165,8 @@ def wide_batch(size: int, n_links: int, depth: int | None = None) -> bool:
 #: on (``os.sched_getaffinity``), so that a process pinned to one core runs one part.
 BATCH_THREADS: int | None = None
 
-#: Least link-states (states times links) per part: a part below about this much work (~0.4 ms for Krang on one core)
-#: gains less from a second core than a thread's hand-over costs.
+#: Least link-states (states times links) per part: a part below about this much work gains less from a second core
+#: than a thread's hand-over costs.
 PART_LINK_STATES = 2048
 
 
@@ -185,9 +175,8 @@ def batch_parts(size: int, n_links: int) -> int:
     is evaluated in (:func:`~.dynamics.forward_dynamics`): one per usable core (:data:`BATCH_THREADS`), as far as
     each part keeps :data:`PART_LINK_STATES` link-states. One batched program gains nothing from a second core
     (XLA's runtime hands its small kernels between the threads of its pool: Krang's part of 512 states keeps 1.35
-    cores busy and runs no faster than on one), so the second core is used by a second program beside the first.
-    Krang, 1024 states, two cores, per state (median of 25 interleaved laps): 7.6 us as one program, 3.7 us in two
-    parts on two threads, against ``abaInParallel``'s 3.4 us on two threads."""
+    cores busy and runs no faster than on one), so the second core is used by a second program beside the first:
+    two parts on two threads take about half the time per state of one program."""
     threads = usable_cores() if BATCH_THREADS is None else BATCH_THREADS
     return max(1, min(threads, size * max(1, n_links) // PART_LINK_STATES))
 
@@ -195,12 +184,10 @@ def batch_parts(size: int, n_links: int) -> int:
 def batch_lanes(per: int, n_links: int = 0) -> int:
     """How many states a chunk of ``per`` states is evaluated with (the extra ones padding): ``per``, plus 8 if it is
     a multiple of 64 below 768. Rows of a multiple of 64 float64 lanes (512 bytes) put the rows of a link's 6 x 6
-    inertias at addresses that share cache sets: Krang on one core, per state, 64 / 128 / 192 / 256 / 384 / 512 states
-    9.3 / 8.8 / 8.4 / 10.2 / 7.9 / 11.2 us against 7.6 / 6.8 / 7.3 / 6.2 / 6.7 / 7.4 us with 8 more (more states in
-    less time per call); 768 and 1024 states are not affected (6.1 and 5.9 us, the same with 8 more). Trees beyond
-    :data:`UNROLL_LINKS` links (chunks of at most 88) instead round ``per`` from 8 states up to a multiple of 4 (256
-    states, one core, per state: a 100-link chain in 3 chunks 70-74 us with 86 states per chunk, 30 us with 88; a
-    200-link chain in 6 chunks 81 us with 48 states, 64 us with 44); the multiple-of-64 rule was not measured there."""
+    inertias at addresses that share cache sets: on Krang, 8 more states took less time per call than such a batch
+    alone; 768 and 1024 states are not affected. Trees beyond :data:`UNROLL_LINKS` links (chunks of at most 88)
+    instead round ``per`` from 8 states up to a multiple of 4, which ran the 100- and 200-link chains faster per
+    state; the multiple-of-64 rule was not measured there."""
     if n_links > UNROLL_LINKS:
         return per if per < 8 else -(-per // 4) * 4
     return per + 8 if per > 0 and per % 64 == 0 and per < 768 else per
@@ -210,9 +197,9 @@ def batch_lanes(per: int, n_links: int = 0) -> int:
 #: solve when its links lie deeper than this on average (the mean depth is the mass matrix's nonzeros per row below
 #: and on the diagonal, which the composite-inertia path pays for and the sweeps do not). Inside a compiled loop, with
 #: link poses composed by pointer jumping (:func:`~.kinematics.link_poses`): serial revolute chains of 8-32 links
-#: (mean depth 4.5-16.5) run 1.0-1.13x faster on the sweeps (1.3-1.6x at 18-32 links before the poses were), Krang
-#: (18 links, mean depth 6.0) 2x faster on composite inertias (11.6 against 23 us). Below depth 8 the chains gain
-#: little (1.0-1.1x) and branched trees like Krang lose much, so the bound stays at 8.
+#: (mean depth 4.5-16.5) run as fast or faster on the sweeps, Krang (18 links, mean depth 6.0) about twice as fast
+#: on composite inertias. Below depth 8 the chains gain little and branched trees like Krang lose much, so the bound
+#: stays at 8.
 ONE_STATE_SWEEPS_DEPTH = 8.0
 
 

@@ -85,7 +85,7 @@ def physical_checks_eager(model: TreeModel, entry: str = "simulate") -> None:
     :class:`~particlesim.errors.ModelError` for the joint-space values."""
     inertia = np.asarray(model.inertia)
     if model.inertia_checked:
-        for k in np.flatnonzero(~_links_physical(inertia)):  # all links at once (one by one: ~2 ms for Krang)
+        for k in np.flatnonzero(~_links_physical(inertia)):  # all links at once (one by one is much slower)
             # raises for the link, in the constructor's words (which decide at the tolerance's edge)
             origin_params_check(inertia[k], f"{entry}: link '{model.link_names[k]}'")
     moved = model.support.T.astype(float) @ inertia[:, 0]

@@ -300,8 +300,8 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     """
     if _ndim(q) <= 1 and _ndim(qd) <= 1 and _ndim(tau) <= 1:  # one state (the common call: kept cheap)
         return _one_state(model, q, qd, tau, smooth_friction)
-    # Python's work before dispatch is a small batch's largest cost: arrays pass through as they are (a conversion
-    # of an array already on the device costs ~20 us), and equal batch axes skip broadcasting.
+    # Python's work before dispatch is a small batch's largest cost: arrays pass through as they are (even a
+    # conversion of an array already on the device costs time), and equal batch axes skip broadcasting.
     q, qd, tau = _as_array(q), _as_array(qd), _as_array(tau)
     nq, nv = model.nq, model.nv  # properties: read once
     for name, v, n in (("q", q, nq), ("qd", qd, nv), ("tau", tau, nv)):
@@ -316,12 +316,11 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
                              "broadcast") from None
         q, qd, tau = (jnp.broadcast_to(v, batch + v.shape[-1:]) for v in (q, qd, tau))
     _parameters_finite(model)
-    if _has_quaternions(model.kinds):  # (a method looked up on an equinox module costs ~50 us: only when needed)
+    if _has_quaternions(model.kinds):  # (a method looked up on an equinox module is costly: only when needed)
         model.check_quaternions_nonzero(q)
     # A few states passed from Python (concrete arrays, no trace active) run state by state; inside a caller's trace
     # the sweeps stay, since an outer jax.vmap (over the states or only over parameters, the states captured) would
-    # turn the loop into a loop of vmapped one-state programs (64 parameter sets of 8 Krang states: 11.4 ms against
-    # 6.5 ms for the sweeps, one core).
+    # turn the loop into a loop of vmapped one-state programs, measured slower than the sweeps.
     size, links = math.prod(q.shape[:-1]), model.n_joints
     concrete = type(q) is _ArrayImpl and type(qd) is _ArrayImpl and type(tau) is _ArrayImpl and top_level()
     by_state = concrete and state_by_state(size, links)
@@ -407,7 +406,7 @@ def _in_parts(model: TreeModel, q, qd, tau, smooth_friction, size: int, parts: i
 
 @functools.lru_cache(maxsize=256)
 def _offset(start: int):
-    """A part's first state as a device scalar (kept: making one costs ~10 us)."""
+    """A part's first state as a device scalar (kept: making one on every call costs time)."""
     return jnp.asarray(start, dtype=jnp.int32)
 
 

@@ -93,8 +93,8 @@ def _parameters_finite(model: TreeModel) -> None:
     is refused by name (``ModelError``) instead of giving NaN. Traced parameters pass (the caller's own entry checks
     them). A model whose parameters are all JAX arrays is remembered by identity while it lives: its fields cannot be
     reassigned and hold arrays directly (no containers), and JAX arrays are immutable, so it stays as checked; the
-    identity test costs well under a microsecond where :func:`particlesim._ode.check_finite_eager`'s comparison of
-    leaves costs ~15 us of a ~80 us single call. Models holding NumPy arrays are checked on every call."""
+    identity test is far cheaper than :func:`particlesim._ode.check_finite_eager`'s comparison of leaves, a sizeable
+    part of a single call. Models holding NumPy arrays are checked on every call."""
     ref = _FINITE.get(id(model))
     if ref is not None and ref() is model:
         return
@@ -209,8 +209,8 @@ def _compose(parents: tuple, order: tuple, t: Array) -> Array:
 def _compose_jvp(parents, order, primals, tangents):
     """Tangents link by link, parents first (``dW_i = dW_k T_i + W_k dT_i`` for parent ``k``, as R and p):
     differentiating the pointer-jumping rounds instead repeats every round's product per tangent, which made a
-    forward-mode gradient of Krang's rollout over 18 parameters 1.8x slower (1.04 -> 1.86 s) than the link-by-link
-    composition; this way it costs what that composition's does, and the value keeps the rounds' few kernels."""
+    forward-mode gradient of Krang's rollout much slower than the link-by-link composition; this way it costs what
+    that composition's does, and the value keeps the rounds' few kernels."""
     (t,), (dt,) = primals, tangents
     w = _compose(parents, order, t)
     drs, dps = [None] * len(parents), [None] * len(parents)
@@ -232,14 +232,13 @@ def link_poses(model: TreeModel, q: Float[ArrayLike, " n"]):
 
     Composed by pointer jumping over the tree (:func:`_ancestor_rounds`): every round composes all links at once with
     the pose of an ancestor twice as far up, so a tree of depth ``d`` takes about log2(d) vectorised rounds instead of
-    one small product per link. Krang (18 links, 10 deep): 4 rounds instead of 17 link-by-link products; its
-    one-state forward dynamics inside a compiled loop took 13.6-14.1 us before, 11.6-11.7 us after (XLA's CPU runtime
-    pays for every kernel it dispatches: 80 kernels became 37), 4 states vmapped inside a loop 9.6 -> 9.1 us per
-    state. Wide ``jax.vmap`` batches compose link by link instead, where the rounds' extra arithmetic would show
-    (:func:`_composer`; a batch passed to :func:`~.dynamics.forward_dynamics` takes the articulated-body sweeps unless
-    it is a few states from Python).
-    Derivatives are taken link by link (:func:`_compose_jvp`). Square 4 x 4 transforms throughout ran 11.8 us for
-    one state but 19.4 us per state vmapped by 4; ``R`` and ``p`` composed separately, 12.5 and 10.0 us."""
+    one small product per link. Krang (18 links, 10 deep): 4 rounds instead of 17 link-by-link products, which makes
+    its forward dynamics faster, one state or a few vmapped (XLA's CPU runtime pays for every kernel it dispatches:
+    its one-state forward dynamics needs 37 kernels instead of 80). Wide ``jax.vmap`` batches compose link by link
+    instead, where the rounds' extra arithmetic would show (:func:`_composer`; a batch passed to
+    :func:`~.dynamics.forward_dynamics` takes the articulated-body sweeps unless it is a few states from Python).
+    Derivatives are taken link by link (:func:`_compose_jvp`). Poses are composed as 3 x 4 ``[R | p]``: faster, one
+    state or vmapped, than square 4 x 4 transforms (much slower vmapped) or ``R`` and ``p`` composed separately."""
     r_rel, p_rel = joint_transforms(model, q)
     t = jnp.concatenate([r_rel, p_rel[:, :, None]], axis=2)  # [R | p] (n, 3, 4)
     w = _compose(tuple(model.parents), tuple(model.topological_order), t)
