@@ -67,16 +67,18 @@ def _setting(dt):
     return f"dt {dt:g} (solref {max(SOLREF_TC, 2 * dt):g} s)"
 
 
-def _tyre(m):
+def _tyre(m, tyre=qc.TYRE):
     site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "centre")
-    ground = float(qc._p(10)[2]) - qc.TYRE["radius"]
-    return [(site, (0.0, 0.0, 1.0), ground, qc.TYRE["radius"], qc.TYRE["stiffness"], qc.TYRE["damping"])]
+    ground = float(qc._p(10)[2]) - tyre["radius"]
+    return [(site, (0.0, 0.0, 1.0), ground, tyre["radius"], tyre["stiffness"], tyre["damping"])]
 
 
-def _c_make(dt):
-    """MuJoCo C twin in ``mujoco.rollout`` (calling thread), the tyre as a compiled ``mjcb_passive``."""
-    m = mujoco.MjModel.from_xml_string(twin_xml(dt))
-    mjcb.install_tyres(_tyre(m))
+def _c_make(dt, integrator="RK4", spring=None, tyre=qc.TYRE):
+    """MuJoCo C twin in ``mujoco.rollout`` (calling thread), the tyre as a compiled ``mjcb_passive``; ``spring``,
+    ``tyre``: the constants of a modified car (as ``quarter_car(spring=..., tyre=...)``)."""
+    xml = twin_xml(dt, spring=spring).replace('integrator="RK4"', f'integrator="{integrator}"')
+    m = mujoco.MjModel.from_xml_string(xml)
+    mjcb.install_tyres(_tyre(m, tyre))
     ro = Rollout(m, initial_state(m), int(round(T_END / dt)))
     body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "chassis")
     save_dt = TS[1] - TS[0]
