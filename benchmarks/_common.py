@@ -1,4 +1,7 @@
-"""Shared benchmark helpers: timing (median of repeats, blocking on results), machine and version records."""
+"""Shared benchmark harness: timing (median of repeats, blocking on results), machine and version records, the
+results files (``results/<name>.{json,csv,png}``) and a module's ``main`` (run, write, print the table).
+
+The scene benchmarks' sweeps, headlines and tables are in :mod:`benchmarks._wp`, on top of these."""
 
 from __future__ import annotations
 
@@ -8,7 +11,7 @@ import json
 import platform
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from importlib import metadata
 from pathlib import Path
 
@@ -67,11 +70,67 @@ def environment() -> dict:
     }
 
 
-def write_results(name: str, res: dict, rows: list[dict]) -> None:
-    """``results/<name>.json`` (the whole ``res``) and ``results/<name>.csv`` (``rows``, one line each)."""
+def write_json(name: str, res: dict, *, indent: int = 2, newline: bool = True) -> None:
+    """``results/<name>.json``: ``res`` indented by ``indent``, ending in a newline unless ``newline`` is False
+    (each module keeps the layout its saved files have)."""
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{name}.json").write_text(json.dumps(res, indent=1))
+    (RESULTS / f"{name}.json").write_text(json.dumps(res, indent=indent) + ("\n" if newline else ""))
+
+
+def write_csv(name: str, rows: list[dict], fieldnames: Sequence[str] | None = None) -> None:
+    """``results/<name>.csv``: one line per row, the columns ``fieldnames`` (default: the first row's keys; a row
+    without one of them leaves it empty)."""
+    RESULTS.mkdir(exist_ok=True)
     with open(RESULTS / f"{name}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w = csv.DictWriter(f, fieldnames=list(rows[0]) if fieldnames is None else list(fieldnames), restval="")
         w.writeheader()
         w.writerows(rows)
+
+
+def write_table(name: str, header: Sequence[str], lines: Iterable[Sequence]) -> None:
+    """``results/<name>.csv`` from a header and lines of values (for results that are not one dict per row)."""
+    RESULTS.mkdir(exist_ok=True)
+    with open(RESULTS / f"{name}.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows(lines)
+
+
+def write_results(name: str, res: dict, rows: list[dict]) -> None:
+    """``results/<name>.json`` (the whole ``res``) and ``results/<name>.csv`` (``rows``, one line each)."""
+    write_json(name, res, indent=1, newline=False)
+    write_csv(name, rows)
+
+
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend: figures go to files, no display is needed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(fig, name: str, *, dpi: int, tight: bool = False) -> None:
+    """``results/<name>.png`` at ``dpi`` (laid out by ``tight_layout`` first if ``tight``); the figure is closed."""
+    if tight:
+        fig.tight_layout()
+    fig.savefig(RESULTS / f"{name}.png", dpi=dpi)
+    pyplot().close(fig)
+
+
+def report(run: Callable[[], dict], write: Callable[[dict], None], markdown: Callable[[dict], str], *,
+           devices: bool = False, elapsed: bool = False) -> dict:
+    """A benchmark module's ``main``: ``run()``, ``write`` its results files, print its table and return the
+    results; with ``devices`` the JAX devices are printed first, with ``elapsed`` the run's ``elapsed_s`` last."""
+    if devices:
+        import jax
+
+        print(f"devices: {jax.devices()}")
+    results = run()
+    write(results)
+    print(markdown(results))
+    if elapsed:
+        print(f"elapsed {results['elapsed_s']:.0f} s")
+    return results

@@ -8,7 +8,6 @@ is the benchmark's post-processing and is not timed.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 
 import mujoco

@@ -21,8 +21,6 @@ at the target error) as met or missed.
 
 from __future__ import annotations
 
-import csv
-import json
 import time
 from collections.abc import Callable, Iterable, Sequence
 
@@ -32,7 +30,7 @@ import numpy as np
 
 from particlesim import compiler_options
 
-from ._common import RESULTS, environment, timed
+from ._common import environment, pyplot, report, save_figure, timed, write_csv, write_json
 
 __all__ = ["Errors", "compile_ours", "headline", "headline_notes", "sweep_ours", "sweep_fixed", "sweep_public",
            "sweep_rollout", "finish", "write", "markdown", "fmt_time"]
@@ -315,19 +313,9 @@ def headline_notes(results: dict, *, mjx_goal: float = 2.0, c_goal: float = 1.0)
 def write(results: dict) -> None:
     """``results/<name>.json``, ``.csv`` and a two-panel ``.png`` (final and trajectory error against wall time)."""
     name = results["benchmark"]
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{name}.json").write_text(json.dumps(results, indent=2) + "\n")
-    keys = list(dict.fromkeys(k for r in results["rows"] for k in r))
-    with open(RESULTS / f"{name}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys, restval="")
-        w.writeheader()
-        w.writerows(results["rows"])
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), constrained_layout=True, sharey=True)
+    write_json(name, results)
+    write_csv(name, results["rows"], list(dict.fromkeys(k for r in results["rows"] for k in r)))
+    fig, axes = pyplot().subplots(1, 2, figsize=(11, 4.6), constrained_layout=True, sharey=True)
     for ax, key, label in ((axes[0], "error", "final-state error"), (axes[1], "max_error", "largest error over the run")):
         for i, method in enumerate(dict.fromkeys(r["method"] for r in results["rows"])):
             sel = [r for r in results["rows"] if r["method"] == method and np.isfinite(r[key])]
@@ -343,8 +331,7 @@ def write(results: dict) -> None:
     axes[1].legend(fontsize=7)
     fig.suptitle(f"{results['scene']}: work against precision ({results['environment']['cpu']}, "
                  f"{results['environment']['cpu_count']} cores)", fontsize=9)
-    fig.savefig(RESULTS / f"{name}.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, name, dpi=110)
 
 
 def fmt_time(s: float) -> str:
@@ -427,9 +414,4 @@ def markdown_without_mjx(results: dict) -> str:
 
 def main(run: Callable[[], dict], to_markdown: Callable[[dict], str]) -> dict:
     """A benchmark module's ``main``: run, write JSON/CSV/PNG, print the table and the elapsed time."""
-    print(f"devices: {jax.devices()}")
-    results = run()
-    write(results)
-    print(to_markdown(results))
-    print(f"elapsed {results['elapsed_s']:.0f} s")
-    return results
+    return report(run, write, to_markdown, devices=True, elapsed=True)

@@ -29,8 +29,6 @@ repeated calls of the jitted loss and of the jitted gradient, ``block_until_read
 
 from __future__ import annotations
 
-import csv
-import json
 import time
 
 import particlesim  # noqa: F401  (float64)
@@ -45,7 +43,7 @@ from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
 
-from ._common import RESULTS, environment, median_time, timed
+from ._common import environment, median_time, pyplot, report, save_figure, timed, write_csv, write_json
 
 NAME = "adjoints"
 URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
@@ -197,20 +195,11 @@ FIELDS = ["scene", "adjoint", "n_params", "forward_ms", "gradient_ms", "ratio", 
 
 
 def write(results: dict) -> None:
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(results, indent=2) + "\n")
-    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS)
-        w.writeheader()
-        w.writerows(results["rows"])
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    write_json(NAME, results)
+    write_csv(NAME, results["rows"], FIELDS)
     rows = results["rows"]
     labels = [f"{r['scene']}\n{r['adjoint']}" for r in rows]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.5))
+    fig, (a1, a2) = pyplot().subplots(1, 2, figsize=(11, 4.5))
     a1.barh(labels, [r["ratio"] for r in rows], color="tab:blue")
     a1.axvline(results["goal_ratio"], color="k", ls="--", lw=1, label=f"goal {results['goal_ratio']:g}x")
     a1.set_xlabel("gradient time / forward rollout time")
@@ -223,9 +212,7 @@ def write(results: dict) -> None:
     a2.invert_yaxis()
     a2.legend(fontsize=8)
     fig.suptitle(f"Adjoints, float64, {results['environment']['cpu']}", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(RESULTS / f"{NAME}.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, NAME, dpi=120, tight=True)
 
 
 def markdown(results: dict) -> str:
@@ -272,11 +259,7 @@ def markdown(results: dict) -> str:
 
 
 def main() -> dict:
-    print(f"devices: {jax.devices()}")
-    results = run()
-    write(results)
-    print(markdown(results))
-    return results
+    return report(run, write, markdown, devices=True)
 
 
 if __name__ == "__main__":

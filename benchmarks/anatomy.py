@@ -37,7 +37,6 @@ Run: ``python -m benchmarks.anatomy``.
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 import shutil
@@ -53,7 +52,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._common import RESULTS, environment
+from ._common import RESULTS, environment, pyplot, report, save_figure, write_json, write_table
 
 NAME = "anatomy"
 SAMPLE_S = 8.0
@@ -429,20 +428,11 @@ def run() -> dict:
 
 
 def write(results: dict) -> None:
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(results, indent=2) + "\n")
-    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["workload", "group", "share", "cores_busy"])
-        for which, p in results["profiles"].items():
-            for g, s in p["share"].items():
-                w.writerow([which, g, s, p["cores_busy"]])
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.8), gridspec_kw={"width_ratios": [3, 2]})
+    write_json(NAME, results)
+    write_table(NAME, ["workload", "group", "share", "cores_busy"],
+                ([which, g, s, p["cores_busy"]] for which, p in results["profiles"].items()
+                 for g, s in p["share"].items()))
+    fig, (a1, a2) = pyplot().subplots(1, 2, figsize=(12, 3.8), gridspec_kw={"width_ratios": [3, 2]})
     names = list(results["profiles"])
     left = np.zeros(len(names))
     for g in GROUPS:
@@ -461,9 +451,7 @@ def write(results: dict) -> None:
     a2.set_xlabel("steps (accepted + rejected)")
     a2.set_ylabel("ms")
     a2.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(RESULTS / f"{NAME}.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, NAME, dpi=120, tight=True)
 
 
 def markdown(results: dict) -> str:
@@ -532,10 +520,7 @@ def _complex(v) -> str:
 
 
 def main() -> dict:
-    results = run()
-    write(results)
-    print(markdown(results))
-    return results
+    return report(run, write, markdown)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import copy
 import functools
-import csv
 import json
 import time
 
@@ -44,7 +43,7 @@ from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
 
-from ._common import RESULTS, environment, median_time, timed
+from ._common import environment, median_time, pyplot, report, save_figure, timed, write_csv, write_json
 from ._native import Rollout, initial_state
 
 NAME = "batched_rollouts"
@@ -255,7 +254,7 @@ def run() -> dict:
         e = float(np.max(np.abs(final_q(states, CHECK) - ref)))
         rows.append({"method": f"MuJoCo C mujoco.rollout (RK4), {max(nthread, 1)} thread{'s' * (nthread > 1)}",
                      "setting": setting, "batch": BATCH, "wall_s": wall, "error": e, "steps": n_steps,
-                     "compile_s": None, "note": f"whole batch, one model per member; least of 3"})
+                     "compile_s": None, "note": "whole batch, one model per member; least of 3"})
         print(rows[-1], flush=True)
     mj.body_mass[:], mj.body_inertia[:] = mass0, inert0
 
@@ -345,21 +344,12 @@ def run() -> dict:
 
 
 def write(results: dict) -> None:
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(results, indent=2) + "\n")
+    write_json(NAME, results)
     keys = ["method", "setting", "batch", "wall_s", "rollouts_per_s", "member_steps_per_s", "error", "steps",
             "compile_s", "note"]
-    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys, restval="")
-        w.writeheader()
-        w.writerows(results["rows"])
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    write_csv(NAME, results["rows"], keys)
     rows = results["rows"]
-    fig, ax = plt.subplots(figsize=(8, 3.8), constrained_layout=True)
+    fig, ax = pyplot().subplots(figsize=(8, 3.8), constrained_layout=True)
     ax.barh([f"{r['method']}\n{r['setting']}, error {r['error']:.0e}" for r in rows],
             [r["rollouts_per_s"] for r in rows], color=["tab:blue" if r["method"].startswith("ours") else "tab:grey"
                                                        for r in rows])
@@ -367,8 +357,7 @@ def write(results: dict) -> None:
     ax.set_xlabel(f"Krang rollouts of {results['t_end_s']:g} s per second of wall time (batch {results['batch']})")
     ax.invert_yaxis()
     ax.set_title(f"Batched rollouts, float64, {results['environment']['cpu']}", fontsize=9)
-    fig.savefig(RESULTS / f"{NAME}.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, NAME, dpi=110)
 
 
 def markdown(results: dict) -> str:
@@ -418,11 +407,7 @@ def markdown(results: dict) -> str:
 
 
 def main() -> dict:
-    print(f"devices: {jax.devices()}")
-    results = run()
-    write(results)
-    print(markdown(results))
-    return results
+    return report(run, write, markdown, devices=True)
 
 
 if __name__ == "__main__":

@@ -34,7 +34,6 @@ Run: ``python -m benchmarks.identification`` (about 20-30 min: sysid's finite-di
 
 from __future__ import annotations
 
-import csv
 import json
 import sys
 import time
@@ -56,7 +55,7 @@ from particlesim.reports.identify_arm import EPS_GRID, select_friction_model
 from particlesim.tree import inverse_dynamics
 from particlesim.io import load_urdf
 
-from ._common import RESULTS, environment
+from ._common import RESULTS, environment, pyplot, save_figure, write_json, write_table
 
 NAME = "identification"
 GRAVITY = (0.0, -9.81, 0.0)
@@ -428,27 +427,18 @@ def main() -> dict:
 
 
 def write(out: dict) -> None:
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(out, indent=1))
-    rows = [out["ours"]] + out["sysid"]
-    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["tool", "start", "test_rmse_pooled", "train_rmse", "wall_s", "time_to_ours_loss_s",
-                    "consistent", "min_pseudo_eig"])
-        for r in rows:
-            w.writerow([r["tool"], r.get("start", "all"), r["test_rmse_pooled"], r["train_rmse"], r["wall_s"],
-                        r.get("time_to_target_s", r["wall_s"]), r["consistent"], min(r["pseudo_inertia_min_eig"])])
+    write_json(NAME, out, indent=1, newline=False)
+    write_table(NAME, ["tool", "start", "test_rmse_pooled", "train_rmse", "wall_s", "time_to_ours_loss_s",
+                       "consistent", "min_pseudo_eig"],
+                ([r["tool"], r.get("start", "all"), r["test_rmse_pooled"], r["train_rmse"], r["wall_s"],
+                  r.get("time_to_target_s", r["wall_s"]), r["consistent"], min(r["pseudo_inertia_min_eig"])]
+                 for r in [out["ours"]] + out["sysid"]))
     plot(out)
     print(markdown(out))
 
 
 def plot(out: dict) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.2))
+    fig, (ax, bx) = pyplot().subplots(1, 2, figsize=(12, 4.2))
     for r in out["sysid"]:
         t, _, loss = zip(*r["trace"])
         opt = ", ".join(f"{k}={v}" for k, v in r["options"].items())
@@ -470,9 +460,7 @@ def plot(out: dict) -> None:
     bx.set_ylabel("base-parameter error (relative)")
     bx.set_title("Simulated arm: parameter error against time")
     bx.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(RESULTS / f"{NAME}.png", dpi=100)
-    plt.close(fig)
+    save_figure(fig, NAME, dpi=100, tight=True)
 
 
 def markdown(out: dict) -> str:

@@ -12,19 +12,16 @@ projected Dopri8 reference at rtol 1e-11. Run: ``python -m benchmarks.identifica
 
 from __future__ import annotations
 
-import csv
-import json
 import time
 
 import particlesim  # noqa: F401  (float64)
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from particlesim.identify.quarter_car import chassis_traces, fit_quarter_car
 from particlesim.scenes.quarter_car import SPRING, TABLE1, TYRE
 
-from ._common import RESULTS, environment
+from ._common import environment, pyplot, save_figure, write_json, write_table
 
 NAME = "identification_quarter_car"
 TS = np.linspace(0.0, 2.0, 201)
@@ -109,26 +106,17 @@ def main() -> dict:
 
 
 def write(out: dict) -> None:
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(out, indent=1))
-    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["jacobian", "wall_s", "first_evaluation_s", "evaluation_s", "evaluations"]
-                   + [f"rel_error_{n}" for n in out["names"]] + [f"rel_std_{n}" for n in out["names"]])
-        for r in out["rows"]:
-            w.writerow([r["jacobian"], r["wall_s"], r["first_evaluation_s"], r["evaluation_s"], r["evaluations"]]
-                       + r["rel_error"] + r["rel_std"])
+    write_json(NAME, out, indent=1, newline=False)
+    write_table(NAME, ["jacobian", "wall_s", "first_evaluation_s", "evaluation_s", "evaluations"]
+                + [f"rel_error_{n}" for n in out["names"]] + [f"rel_std_{n}" for n in out["names"]],
+                ([r["jacobian"], r["wall_s"], r["first_evaluation_s"], r["evaluation_s"], r["evaluations"]]
+                 + r["rel_error"] + r["rel_std"] for r in out["rows"]))
     plot(out)
     print(markdown(out))
 
 
 def plot(out: dict) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.2))
+    fig, (ax, bx) = pyplot().subplots(1, 2, figsize=(12, 4.2))
     for r in out["rows"]:
         t, rms = zip(*r["curve"])
         ax.semilogy(t, np.minimum.accumulate(rms), "o-", ms=3, label=r["jacobian"])
@@ -146,9 +134,7 @@ def plot(out: dict) -> None:
     bx.set_xticks(x, [n.replace("_", "\n") for n in out["names"]], fontsize=8)
     bx.set_ylabel("relative error")
     bx.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(RESULTS / f"{NAME}.png", dpi=100)
-    plt.close(fig)
+    save_figure(fig, NAME, dpi=100, tight=True)
 
 
 def markdown(out: dict) -> str:

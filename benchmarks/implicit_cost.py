@@ -35,7 +35,7 @@ from particlesim.scenes.iftomm import a05_flyball
 from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics
 
-from ._common import environment, write_results
+from ._common import environment, report, write_results
 
 NAME = "implicit_cost"
 REPEAT = 5
@@ -161,10 +161,7 @@ def markdown(results: dict) -> str:
 
 
 def main() -> dict:
-    res = run()
-    write_results(NAME, res, res["rows"])
-    print(markdown(res))
-    return res
+    return report(run, lambda res: write_results(NAME, res, res["rows"]), markdown)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,6 @@ compile ≤ 5 s.
 
 from __future__ import annotations
 
-import csv
 import json
 import time
 
@@ -31,7 +30,7 @@ from particlesim.io import load_urdf
 from particlesim.twins.urdf import JointMap, mjx_model, mujoco_model, urdf_for_mujoco
 from particlesim.simulate import simulate
 
-from ._common import RESULTS, environment, median_time, timed
+from ._common import environment, median_time, pyplot, report, save_figure, timed, write_csv, write_json
 
 NAME = "krang_dynamics"
 URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
@@ -426,27 +425,16 @@ def run() -> dict:
 
 
 def write(results: dict) -> None:
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(results, indent=2) + "\n")
-    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=["name", "time_us", "unit", "ratio_vs_aba", "compile_s", "note"])
-        w.writeheader()
-        w.writerows(results["rows"])
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    write_json(NAME, results)
+    write_csv(NAME, results["rows"], ["name", "time_us", "unit", "ratio_vs_aba", "compile_s", "note"])
     rows = results["rows"]
-    fig, ax = plt.subplots(figsize=(9, 4.5))
+    fig, ax = pyplot().subplots(figsize=(9, 4.5))
     ax.barh([f"{r['name']}\n({r['unit']})" for r in rows], [r["time_us"] for r in rows], color="tab:blue")
     ax.set_xscale("log")
     ax.set_xlabel("time [µs] (log)")
     ax.invert_yaxis()
     ax.set_title(f"Krang fixed-wheel, float64, {results['environment']['cpu']}", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(RESULTS / f"{NAME}.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, NAME, dpi=120, tight=True)
 
 
 def markdown(results: dict) -> str:
@@ -547,11 +535,7 @@ def markdown(results: dict) -> str:
 
 
 def main() -> dict:
-    print(f"devices: {jax.devices()}")
-    results = run()
-    write(results)
-    print(markdown(results))
-    return results
+    return report(run, write, markdown, devices=True)
 
 
 if __name__ == "__main__":

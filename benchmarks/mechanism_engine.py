@@ -21,7 +21,6 @@ Writes ``results/mechanism_engine.{json,csv,png}``. Run: ``python -m benchmarks.
 from __future__ import annotations
 
 import copy
-import csv
 import json
 import time
 
@@ -40,7 +39,7 @@ from particlesim.scenes.chains import chain_geometry, chain_mechanism
 from particlesim.scenes.nikravesh import aa_mechanism
 from particlesim.twins.quarter_car import twin_xml
 
-from ._common import RESULTS, environment
+from ._common import RESULTS, environment, pyplot, report, save_figure, write_json, write_table
 from ._native import Rollout, initial_state
 from ._wp import _time
 
@@ -324,27 +323,17 @@ def run() -> dict:
 
 
 def write(res: dict) -> None:
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(res, indent=2) + "\n")
-    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["part", "what", "setting", "wall_s", "compile_s", "extra"])
-        for r in res["compile"]:
-            w.writerow(["compile", r["scene"], f"{r['solver']} {r.get('solve', 'dense')}", r["run_s"], r["compile_s"],
-                        r.get("build_s", "")])
-        for k, v in res["gradients"].items():
-            if isinstance(v, dict):
-                w.writerow(["gradient", k, "", v["run_s"], v["compile_s"], v.get("cost_vs_rollout", "")])
-        for r in res["batch"]["rows"]:
-            w.writerow(["batch", r["method"], r["setting"], r["wall_s"], r["compile_s"], r["per_s"]])
-        for r in res["chain_steps"]:
-            w.writerow(["chain step", f"N={r['n']}", r["solve"], r["per_step_s"], "", r["build_s"]])
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.4), constrained_layout=True)
+    write_json(NAME, res)
+    write_table(NAME, ["part", "what", "setting", "wall_s", "compile_s", "extra"],
+                [["compile", r["scene"], f"{r['solver']} {r.get('solve', 'dense')}", r["run_s"], r["compile_s"],
+                  r.get("build_s", "")] for r in res["compile"]]
+                + [["gradient", k, "", v["run_s"], v["compile_s"], v.get("cost_vs_rollout", "")]
+                   for k, v in res["gradients"].items() if isinstance(v, dict)]
+                + [["batch", r["method"], r["setting"], r["wall_s"], r["compile_s"], r["per_s"]]
+                   for r in res["batch"]["rows"]]
+                + [["chain step", f"N={r['n']}", r["solve"], r["per_step_s"], "", r["build_s"]]
+                   for r in res["chain_steps"]])
+    fig, (a1, a2) = pyplot().subplots(1, 2, figsize=(11, 4.4), constrained_layout=True)
     for solve in ("dense", "chain"):
         sel = [r for r in res["compile"] if r.get("solve") == solve]
         a1.loglog([r["n"] for r in sel], [r["compile_s"] for r in sel], marker="o", label=f"compile, {solve}")
@@ -358,8 +347,7 @@ def write(res: dict) -> None:
         a.grid(True, which="both", alpha=0.3)
         a.legend(fontsize=8)
     fig.suptitle(f"Revolute chains: compile and step cost against N ({res['environment']['cpu']})", fontsize=9)
-    fig.savefig(RESULTS / f"{NAME}.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, NAME, dpi=110)
 
 
 def _fmt(x: float) -> str:
@@ -368,7 +356,7 @@ def _fmt(x: float) -> str:
 
 def markdown(res: dict) -> str:
     env = res["environment"]
-    lines = [f"### Mechanism engine: compile, gradients, batch, chain scaling", "",
+    lines = ["### Mechanism engine: compile, gradients, batch, chain scaling", "",
              f"{env['cpu']}, {env['cpu_count']} cores, load {env['load_average_1_5_15min'][0]:.1f}, {env['date']}; "
              f"least of repeats, compile separate. Took {res['elapsed_s'] / 60:.1f} min.", "",
              "| compile of a forward rollout (301 saves) | solver | compile | run |", "|---|---|---:|---:|"]
@@ -452,10 +440,7 @@ def rerun_chain_steps() -> dict:
 
 
 def main() -> dict:
-    res = run()
-    write(res)
-    print(markdown(res))
-    return res
+    return report(run, write, markdown)
 
 
 if __name__ == "__main__":
@@ -464,12 +449,8 @@ if __name__ == "__main__":
     if sys.argv[1:2] == ["batch-worker"]:
         _batch_worker(sys.argv[2])
     elif sys.argv[1:] == ["batch"]:
-        r = rerun_batch()
-        write(r)
-        print(markdown(r))
+        report(rerun_batch, write, markdown)
     elif sys.argv[1:] == ["chains"]:
-        r = rerun_chain_steps()
-        write(r)
-        print(markdown(r))
+        report(rerun_chain_steps, write, markdown)
     else:
         main()

@@ -9,8 +9,6 @@ repeats; compile time separately. Run: ``python -m benchmarks.mechanism_recursiv
 
 from __future__ import annotations
 
-import csv
-import json
 import time
 
 import jax
@@ -23,8 +21,9 @@ from particlesim.mechanism import accelerations, chain_accelerations, chain_plan
 from particlesim.scenes.chains import chain_geometry, chain_mechanism
 from particlesim.twins.chains import chain_mjcf
 
-from ._common import RESULTS, environment, median_time, timed
+from ._common import environment, median_time, pyplot, report, save_figure, timed, write_csv, write_json
 
+NAME = "mechanism_recursive"
 SIZES = (2, 4, 8, 16, 32, 64)
 REPEATS = 20
 SLOPE_FROM = 8  # fit the slope over N >= this
@@ -40,7 +39,7 @@ def _loop(step):
     return jax.jit(run)
 
 
-def main() -> dict:
+def run() -> dict:
     started = time.perf_counter()
     rows = []
     for joint in ("spherical", "revolute"):
@@ -72,25 +71,18 @@ def main() -> dict:
             sel = [r for r in rows if r["joint"] == joint and r["solve"] == name and r["n"] >= SLOPE_FROM]
             slopes[f"{joint}/{name}"] = float(np.polyfit(np.log([r["n"] for r in sel]),
                                                          np.log([r["us_per_eval"] for r in sel]), 1)[0])
-    out = {"environment": environment(), "rows": rows, "loglog_slope_n_ge_8": slopes,
-           "elapsed_s": time.perf_counter() - started}
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "mechanism_recursive.json").write_text(json.dumps(out, indent=2))
-    with open(RESULTS / "mechanism_recursive.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    _plot(rows)
-    return out
+    return {"environment": environment(), "rows": rows, "loglog_slope_n_ge_8": slopes,
+            "elapsed_s": time.perf_counter() - started}
+
+
+def write(out: dict) -> None:
+    write_json(NAME, out, newline=False)
+    write_csv(NAME, out["rows"])
+    _plot(out["rows"])
 
 
 def _plot(rows) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4.5), constrained_layout=True)
+    fig, ax = pyplot().subplots(figsize=(6, 4.5), constrained_layout=True)
     for joint, style in (("spherical", "-"), ("revolute", "--")):
         for name, marker in (("recursive", "o"), ("dense", "s"), ("MuJoCo C", "^")):
             sel = [r for r in rows if r["joint"] == joint and r["solve"] == name]
@@ -100,8 +92,7 @@ def _plot(rows) -> None:
     ax.set_ylabel("µs per acceleration evaluation")
     ax.set_title("Serial chains: recursion vs dense solve vs MuJoCo C mj_forward")
     ax.legend()
-    fig.savefig(RESULTS / "mechanism_recursive.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, NAME, dpi=110)
 
 
 def markdown(results: dict) -> str:
@@ -127,5 +118,9 @@ def markdown(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def main() -> dict:
+    return report(run, write, markdown)
+
+
 if __name__ == "__main__":
-    print(markdown(main()))
+    main()

@@ -28,7 +28,7 @@ from particlesim.twins import callbacks as mjcb
 from particlesim.twins.quarter_car import SOLREF_TC, twin_xml
 
 from . import _wp
-from ._common import timed
+from ._common import report, timed
 from ._native import Rollout, initial_state
 from particlesim.twins.mjx import quarter_car_rollout
 
@@ -147,10 +147,7 @@ def markdown(results: dict) -> str:
 
 
 def main() -> dict:
-    results = run()
-    _wp.write(results)
-    print(markdown(results))
-    return results
+    return report(run, _wp.write, markdown)
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ from particlesim.mechanism.dynamics import _solve, prepare
 from particlesim.scenes import quarter_car as qc
 from particlesim.scenes import vehicle as sv
 
-from ._common import RESULTS, environment, median_time, write_results
+from ._common import environment, median_time, pyplot, save_figure, write_results
 
 NAME = "sparse_engine"
 CORNER_N = (1, 2, 4, 8)
@@ -184,12 +184,7 @@ def slope(rows, solve) -> float:
 
 
 def plot(res: dict) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.5, 4))
+    fig, ax = pyplot().subplots(figsize=(5.5, 4))
     for solve, marker in (("dense", "o"), ("sparse", "s")):
         pts = [(r["corners"], r["eval_us"]) for r in res["scaling"] if r["solve"] == solve]
         ax.loglog(*zip(*pts), marker=marker, label=f"{solve} (slope {res['slopes'][solve]:.2f})")
@@ -200,8 +195,7 @@ def plot(res: dict) -> None:
     ax.set_xticks(CORNER_N, [str(n) for n in CORNER_N])
     ax.legend()
     ax.set_title("Hub split against the dense solve")
-    fig.tight_layout()
-    fig.savefig(RESULTS / f"{NAME}.png", dpi=120)
+    save_figure(fig, NAME, dpi=120, tight=True)
 
 
 def main() -> dict:

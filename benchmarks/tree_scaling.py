@@ -14,8 +14,6 @@ Run: ``python -m benchmarks.tree_scaling``.
 
 from __future__ import annotations
 
-import csv
-import json
 import os
 import time
 
@@ -30,7 +28,7 @@ from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
 from particlesim.tree.aba import ONE_STATE_SWEEPS_DEPTH, UNROLL_LINKS, one_state_sweeps
 
-from ._common import RESULTS, environment, timed
+from ._common import environment, pyplot, report, save_figure, timed, write_csv, write_json
 
 NAME = "tree_scaling"
 SIZES = (7, 25, 50, 100, 200)
@@ -156,20 +154,11 @@ def run() -> dict:
 
 
 def write(results: dict) -> None:
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(results, indent=2) + "\n")
-    with open(RESULTS / f"{NAME}.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(results["rows"][0]))
-        w.writeheader()
-        w.writerows(results["rows"])
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    write_json(NAME, results)
+    write_csv(NAME, results["rows"], list(results["rows"][0]))
     rows = results["rows"]
     ns = [r["n"] for r in rows]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
+    fig, (a1, a2) = pyplot().subplots(1, 2, figsize=(10, 4))
     for key, label in (("single_call_us", "ours, one jitted call"), ("in_scan_us", "ours, in a compiled scan"),
                        ("batch_per_state_us", f"ours, batch of {BATCH} (per state)"),
                        ("pin_aba_call_us", "Pinocchio aba (per call)"),
@@ -185,9 +174,7 @@ def write(results: dict) -> None:
     a2.set_ylabel("compile [s]")
     a2.legend(fontsize=7)
     fig.suptitle(f"Serial chains, forward dynamics, float64, {results['environment']['cpu']}", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(RESULTS / f"{NAME}.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, NAME, dpi=120, tight=True)
 
 
 def markdown(results: dict) -> str:
@@ -217,10 +204,7 @@ def markdown(results: dict) -> str:
 
 
 def main() -> dict:
-    results = run()
-    write(results)
-    print(markdown(results))
-    return results
+    return report(run, write, markdown)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,6 @@ Writes ``results/wp_chains_revolute.*`` and ``results/wp_chains_spherical.*`` (J
 
 from __future__ import annotations
 
-import json
 import time
 
 import particlesim  # noqa: F401  (float64)
@@ -33,7 +32,7 @@ from particlesim.scenes.chains import chain_geometry, chain_mechanism
 from particlesim.twins.chains import chain_mjcf
 
 from . import _wp
-from ._common import RESULTS, timed
+from ._common import report, timed, write_json
 from particlesim.twins.mjx import chain_rollout
 from ._native import Rollout, initial_state
 
@@ -140,7 +139,7 @@ def run() -> dict:
 def write(results: dict) -> None:
     for sec in results["sections"]:
         _wp.write(sec)
-    (RESULTS / f"{NAME}.json").write_text(json.dumps(results, indent=2) + "\n")
+    write_json(NAME, results)
 
 
 def markdown(results: dict) -> str:
@@ -148,10 +147,7 @@ def markdown(results: dict) -> str:
 
 
 def main() -> dict:
-    results = run()
-    write(results)
-    print(markdown(results))
-    return results
+    return report(run, write, markdown)
 
 
 if __name__ == "__main__":

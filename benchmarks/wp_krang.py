@@ -42,7 +42,7 @@ from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
 
 from . import _wp
-from ._common import median_time, timed
+from ._common import median_time, report, timed
 from particlesim.twins.mjx import forced_rk4_rollout
 
 NAME = "wp_krang"
@@ -243,10 +243,7 @@ def markdown(results: dict) -> str:
 
 
 def main() -> dict:
-    results = run()
-    _wp.write(results)
-    print(markdown(results))
-    return results
+    return report(run, _wp.write, markdown)
 
 
 if __name__ == "__main__":
