@@ -37,7 +37,7 @@ from .._ode import _ArrayImpl
 from .._linalg import spd_solve_applied
 from ..errors import ModelError
 from .kinematics import _has_quaternions, _parameters_finite
-from .model import TreeModel
+from .model import TreeModel, check_quaternions_nonzero
 
 __all__ = [
     "mass_matrix",
@@ -75,7 +75,7 @@ def _check(model: TreeModel, **vectors) -> None:
 
 
 def _bodies(model: TreeModel, q) -> _Bodies:
-    model.check_quaternions_nonzero(q)  # concrete values only
+    check_quaternions_nonzero(model, q)  # concrete values only
     rot, pos = jax.lax.optimization_barrier(link_poses.raw(model, q))
     m, ms, j = unpack_params(model.inertia)
     hl = _mv(rot, ms)  # first moment about O_j, world axes
@@ -157,7 +157,7 @@ def _concrete_checks(model: TreeModel, arrays: dict) -> None:
     _parameters_finite(model)
     if _has_quaternions(model.kinds):
         _check(model, **{k: v for k, v in arrays.items() if k in ("q", "qd", "qdd", "tau")})
-        model.check_quaternions_nonzero(arrays["q"])
+        check_quaternions_nonzero(model, arrays["q"])
 
 
 @compiled("mass_matrix", check=_concrete_checks, arrays_only=True)
@@ -317,7 +317,7 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
         q, qd, tau = (jnp.broadcast_to(v, batch + v.shape[-1:]) for v in (q, qd, tau))
     _parameters_finite(model)
     if _has_quaternions(model.kinds):  # (a method looked up on an equinox module is costly: only when needed)
-        model.check_quaternions_nonzero(q)
+        check_quaternions_nonzero(model, q)
     # A few states passed from Python (concrete arrays, no trace active) run state by state; inside a caller's trace
     # the sweeps stay, since an outer jax.vmap (over the states or only over parameters, the states captured) would
     # turn the loop into a loop of vmapped one-state programs, measured slower than the sweeps.

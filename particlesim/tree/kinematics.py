@@ -22,7 +22,7 @@ from .. import _ode
 from .._jit import compiled
 from ..errors import ModelError
 from ..spatial import quaternion_to_matrix, unit_axis_rotations
-from .model import BALL, FREE, TreeModel
+from .model import BALL, FREE, TreeModel, check_quaternions_nonzero
 
 __all__ = [
     "joint_transforms",
@@ -132,7 +132,7 @@ def _quaternion_checks(model: TreeModel, arrays: dict) -> None:
     if _has_quaternions(model.kinds):
         q = arrays["q"]
         if jnp.shape(q)[-1:] == (model.nq,):
-            model.check_quaternions_nonzero(q)
+            check_quaternions_nonzero(model, q)
 
 
 @functools.lru_cache(maxsize=64)

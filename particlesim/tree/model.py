@@ -375,18 +375,8 @@ class TreeModel(eqx.Module):
 
     def check_quaternions_nonzero(self, q) -> None:
         """Raise :class:`ModelError` naming the joint if a free or ball joint's quaternion in the concrete
-        configuration(s) ``q`` (``(..., nq)``) is zero or not finite: the dynamics normalise a quaternion, so any
-        other length is read as its direction, but a zero one has none (it would give NaN)."""
-        if not _concrete(q) or not self.multi_dof:
-            return
-        q = np.asarray(q, dtype=float)
-        for i, k, iq, _ in self.coordinate_blocks():
-            if k in (FREE, BALL):
-                quat = q[..., iq + 3:iq + 7] if k == FREE else q[..., iq:iq + 4]
-                n = np.linalg.norm(quat, axis=-1)
-                if not np.all(np.isfinite(n) & (n > 1e-12)):
-                    raise ModelError(f"joint '{self.joint_names[i]}': its quaternion [qx, qy, qz, qw] in q is zero "
-                                     "or not finite; give a unit quaternion ([0, 0, 0, 1] is the identity)")
+        configuration(s) ``q`` (``(..., nq)``) is zero or not finite (:func:`check_quaternions_nonzero`)."""
+        check_quaternions_nonzero(self, q)
 
     def configuration_rate(self, q, qd):
         """``dq/dt`` from the configuration ``q`` (nq) and velocity ``qd`` (nv): ``qd`` itself except on a free
@@ -638,6 +628,39 @@ def _frames(frames, link_names, n) -> tuple:
             raise ModelError(f"frame '{name}': pose is not finite or not a rotation")
         out.append((str(name), int(owner), tuple(float(v) for v in r.ravel()), tuple(float(v) for v in p)))
     return tuple(out)
+
+
+def check_quaternions_nonzero(model: "TreeModel", q) -> None:
+    """Raise :class:`ModelError` naming the joint if a free or ball joint's quaternion in the concrete
+    configuration(s) ``q`` (``(..., nq)``) is zero or not finite: the dynamics normalise a quaternion, so any other
+    length is read as its direction, but a zero one has none (it would give NaN). Run before every call from
+    Python, so kept cheap: a function rather than a method (looking a method up on an equinox module costs more than
+    the check), the quaternions' positions in ``q`` found once per structure, the check one vectorised norm."""
+    kinds = model.kinds
+    if not (FREE in kinds or BALL in kinds) or not _concrete(q):
+        return
+    slots, joints = _quaternion_slots(kinds, model.mimic)
+    n = np.linalg.norm(np.asarray(q, dtype=float)[..., slots], axis=-1)  # (..., quaternions)
+    good = np.isfinite(n) & (n > 1e-12)
+    if not good.all():
+        first = joints[int(np.argmin(good.reshape(-1, len(joints)).all(axis=0)))]
+        raise ModelError(f"joint '{model.joint_names[first]}': its quaternion [qx, qy, qz, qw] in q is zero or not "
+                         "finite; give a unit quaternion ([0, 0, 0, 1] is the identity)")
+
+
+@functools.lru_cache(maxsize=256)
+def _quaternion_slots(kinds: tuple, mimic: tuple) -> tuple[np.ndarray, tuple]:
+    """Positions in ``q`` of every free or ball joint's quaternion (``(k, 4)``) and those joints' indices."""
+    slots, joints, iq = [], [], 0
+    for i, (k, m) in enumerate(zip(kinds, mimic)):
+        if m:
+            continue
+        if k in (FREE, BALL):
+            start = iq + 3 if k == FREE else iq
+            slots.append(range(start, start + 4))
+            joints.append(i)
+        iq += _NQ.get(k, 1)
+    return np.asarray(slots, dtype=np.intp).reshape(-1, 4), tuple(joints)
 
 
 @functools.lru_cache(maxsize=256)

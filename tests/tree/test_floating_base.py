@@ -206,6 +206,16 @@ def test_floating_base_input_errors():
         forward_dynamics(model, np.r_[[np.r_[0, 0, 0, 0, 0, 0, 1.0, 0]], [np.zeros(8)]], np.zeros(7), np.zeros(7))
     kw = dict(axes=np.eye(3)[:2], origin_rotations=np.stack([np.eye(3)] * 2), origin_xyz=np.zeros((2, 3)),
               inertia=np.tile([1.0, 0, 0, 0, 1, 0, 0, 1, 0, 1], (2, 1)), joint_names=["a", "b"])
+    # the joint named is the one whose quaternion is bad, in any state of a batch
+    two = TreeModel(parents=[-1, 0], kinds=["free", "ball"], **kw)
+    good = np.r_[0, 0, 0, 0, 0, 0, 1.0, 0, 0, 0, 1.0]
+    for bad_at, name in ((slice(7, 11), "b"), (slice(3, 7), "a")):
+        bad = good.copy()
+        bad[bad_at] = np.nan if name == "a" else 0.0
+        with pytest.raises(ModelError, match=f"joint '{name}': its quaternion"):
+            mass_matrix(two, bad)
+        with pytest.raises(ModelError, match=f"joint '{name}': its quaternion"):
+            forward_dynamics(two, np.stack([good, bad]), np.zeros(9), np.zeros(9))
     with pytest.raises(ModelError, match="joint 'b': a free joint must join a root link to the world"):
         TreeModel(parents=[-1, 0], kinds=["revolute", "free"], **kw)
     with pytest.raises(ModelError, match="mimic joint .b.: free and ball joints neither mimic nor are mimicked"):
