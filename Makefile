@@ -6,8 +6,9 @@ PY     := $(VENV)/bin/python
 JOBS   ?= 2
 STAMP  := $(VENV)/.installed-stamp
 BENCH_STAMP := $(VENV)/.bench-stamp
+DOCS_STAMP  := $(VENV)/.docs-stamp
 
-.PHONY: run test test-xla-defaults bench notebooks clean
+.PHONY: run test test-xla-defaults bench docs notebooks clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -41,9 +42,18 @@ $(BENCH_STAMP): $(STAMP)
 bench: $(BENCH_STAMP)
 	$(PY) -m benchmarks.run_all
 
+$(DOCS_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+## docs: the documentation site in site/ (the guides, the notebooks with their saved outputs, the API reference from
+## the docstrings); any warning fails the build. (Material for MkDocs' banner about its successor is switched off.)
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict
+
 ## notebooks: rebuild the notebooks from notebooks/build_*.py and execute them in place, saving their outputs
 notebooks: $(STAMP)
 	$(PY) notebooks/run.py
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) out site .pytest_cache
