@@ -29,7 +29,6 @@ from .aba import (aba, aba_one_state, batch_chunks, batch_lanes, batch_parts, on
                   supports_aba, tree_depth, wide_batch)
 from ..inertia import unpack_params
 from .kinematics import _mm, _mv, limit_deflections, link_poses, spring_deflections, world_axes
-from .. import _ode
 from .._jit import _as_array, compiled
 from .._threads import inline_batch, run_parts, splits_safely, threads_apply
 from .._xla import top_level
