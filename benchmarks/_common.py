@@ -70,6 +70,12 @@ def environment() -> dict:
     }
 
 
+def machine(env: dict) -> str:
+    """The machine a table was measured on, as the tables state it: CPU, cores, 1-minute load average, date."""
+    return (f"{env['cpu']}, {env['cpu_count']} cores, load average {env['load_average_1_5_15min'][0]:.1f} (1 min), "
+            f"{env['date']}")
+
+
 def write_json(name: str, res: dict, *, indent: int = 2, newline: bool = True) -> None:
     """``results/<name>.json``: ``res`` indented by ``indent``, ending in a newline unless ``newline`` is False
     (each module keeps the layout its saved files have)."""
@@ -112,8 +118,11 @@ def pyplot():
     return plt
 
 
-def save_figure(fig, name: str, *, dpi: int, tight: bool = False) -> None:
-    """``results/<name>.png`` at ``dpi`` (laid out by ``tight_layout`` first if ``tight``); the figure is closed."""
+def save_figure(fig, name: str, *, dpi: int, tight: bool = False, title: str | None = None) -> None:
+    """``results/<name>.png`` at ``dpi``, under the figure title ``title`` if given (small, it names the machine)
+    and laid out by ``tight_layout`` first if ``tight``; the figure is closed."""
+    if title is not None:
+        fig.suptitle(title, fontsize=9)
     if tight:
         fig.tight_layout()
     fig.savefig(RESULTS / f"{name}.png", dpi=dpi)

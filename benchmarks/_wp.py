@@ -30,7 +30,7 @@ import numpy as np
 
 from particlesim import compiler_options
 
-from ._common import environment, pyplot, report, save_figure, timed, write_csv, write_json
+from ._common import environment, machine, pyplot, report, save_figure, timed, write_csv, write_json
 
 __all__ = ["Errors", "compile_ours", "headline", "headline_notes", "sweep_ours", "sweep_fixed", "sweep_public",
            "sweep_rollout", "finish", "write", "markdown", "fmt_time"]
@@ -329,9 +329,8 @@ def write(results: dict) -> None:
         ax.grid(True, which="both", alpha=0.3)
     axes[0].set_ylabel(f"wall time for {results['t_end_s']:g} s simulated [s] (compile excluded)")
     axes[1].legend(fontsize=7)
-    fig.suptitle(f"{results['scene']}: work against precision ({results['environment']['cpu']}, "
-                 f"{results['environment']['cpu_count']} cores)", fontsize=9)
-    save_figure(fig, name, dpi=110)
+    save_figure(fig, name, dpi=110, title=f"{results['scene']}: work against precision "
+                f"({results['environment']['cpu']}, {results['environment']['cpu_count']} cores)")
 
 
 def fmt_time(s: float) -> str:
@@ -366,12 +365,11 @@ def _interleaved_line(chk: dict) -> str:
 
 
 def markdown(results: dict, *, all_rows: bool = False) -> str:
-    env, unit = results["environment"], results["unit"]
-    load = env["load_average_1_5_15min"][0]
+    unit = results["unit"]
     lines = [f"### {results['scene']}: work against precision ({results['t_end_s']:g} s)", "",
-             f"{env['cpu']}, {env['cpu_count']} cores, load average {load:.1f} (1 min), {env['date']}. "
-             f"Error = {results['error_what']} [{unit}], against {results['reference']['what']}. Wall time per "
-             f"run (least of repeats), compile excluded and listed separately; benchmark took "
+             f"{machine(results['environment'])}. Error = {results['error_what']} [{unit}], against "
+             f"{results['reference']['what']}. Wall time per run (least of repeats), compile excluded and listed "
+             f"separately; benchmark took "
              f"{results['elapsed_s'] / 60:.1f} min.", ""]
     best, sp = results["ours_best"], results["speedup_vs"]
     if best:

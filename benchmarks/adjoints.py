@@ -43,7 +43,7 @@ from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
 
-from ._common import environment, median_time, pyplot, report, save_figure, timed, write_csv, write_json
+from ._common import environment, machine, median_time, pyplot, report, save_figure, timed, write_csv, write_json
 
 NAME = "adjoints"
 URDF = "krang/urdf/krang_fixed_wheel_2018-04.urdf"
@@ -211,8 +211,7 @@ def write(results: dict) -> None:
     a2.set_xlabel("relative error of directional derivatives")
     a2.invert_yaxis()
     a2.legend(fontsize=8)
-    fig.suptitle(f"Adjoints, float64, {results['environment']['cpu']}", fontsize=9)
-    save_figure(fig, NAME, dpi=120, tight=True)
+    save_figure(fig, NAME, dpi=120, tight=True, title=f"Adjoints, float64, {results['environment']['cpu']}")
 
 
 def markdown(results: dict) -> str:
@@ -226,8 +225,7 @@ def markdown(results: dict) -> str:
     lines = [
         "### Gradients through rollouts: adjoints",
         "",
-        f"{env['cpu']}, {env['cpu_count']} cores, load average {env['load_average_1_5_15min'][0]:.1f} (1 min), "
-        f"{env['date']}. Krang: {results['settings']['krang']}; quarter car: {results['settings']['quarter_car']}. "
+        f"{machine(env)}. Krang: {results['settings']['krang']}; quarter car: {results['settings']['quarter_car']}. "
         f"Gradient of a scalar trajectory loss; run times are medians with compile excluded (listed separately); "
         f"errors are the largest relative error of {results['settings']['directions']} random directional "
         "derivatives against central differences (step from a sweep; its accuracy in the FD column).",

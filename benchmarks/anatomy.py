@@ -52,7 +52,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._common import RESULTS, environment, pyplot, report, save_figure, write_json, write_table
+from ._common import RESULTS, environment, machine, pyplot, report, save_figure, write_json, write_table
 
 NAME = "anatomy"
 SAMPLE_S = 8.0
@@ -457,8 +457,7 @@ def write(results: dict) -> None:
 def markdown(results: dict) -> str:
     env = results["environment"]
     lines = ["### Where the time goes: profiles of short programs", "",
-             f"{env['cpu']}, {env['cpu_count']} cores, load average {env['load_average_1_5_15min'][0]:.1f} (1 min), "
-             f"{env['date']}; jax {env['versions'].get('jax')}; took {results['wall_s'] / 60:.1f} min."]
+             f"{machine(env)}; jax {env['versions'].get('jax')}; took {results['wall_s'] / 60:.1f} min."]
     if results["profiles"]:
         lines += [f"`perf` samples at {results['rate_hz']} Hz over {results['sample_s']:g} s of each workload looping "
                   "(a fresh process each, compiled and warmed first); shares of all samples, and the cores kept busy "

@@ -43,7 +43,7 @@ from particlesim.simulate import simulate
 from particlesim.tree import forward_dynamics
 from particlesim.io import load_urdf
 
-from ._common import environment, median_time, pyplot, report, save_figure, timed, write_csv, write_json
+from ._common import environment, machine, median_time, pyplot, report, save_figure, timed, write_csv, write_json
 from ._native import Rollout, initial_state
 
 NAME = "batched_rollouts"
@@ -371,8 +371,7 @@ def markdown(results: dict) -> str:
                 key=lambda r: r["rollouts_per_s"], default=None)
     lines = [f"### Batched rollouts: {results['batch']} Krang parameter sets and initial states "
              f"({results['t_end_s']:g} s each)", "",
-             f"{env['cpu']}, {env['cpu_count']} cores, load average {env['load_average_1_5_15min'][0]:.1f} (1 min), "
-             f"{env['date']}; benchmark took {results['elapsed_s'] / 60:.1f} min. Error = largest final joint-angle "
+             f"{machine(env)}; benchmark took {results['elapsed_s'] / 60:.1f} min. Error = largest final joint-angle "
              f"error over the checked members against ours Dopri8 rtol 1e-12.", ""]
     if ours:
         parts = [f"{ours['rollouts_per_s'] / r['rollouts_per_s']:.1f}× {m}" for m, r in best.items()

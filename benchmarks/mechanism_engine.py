@@ -62,6 +62,14 @@ def _first_and_cached(call) -> tuple[float, float]:
     return max(first - run, 0.0), run
 
 
+def _revolute_chain(n: int) -> tuple[float, object, jnp.ndarray]:
+    """``(build_s, mech, x0)``: the revolute chain of ``n`` links (seed ``n``) and the time building it took."""
+    t = time.perf_counter()
+    mech, x0 = chain_mechanism(chain_geometry(n, "revolute", seed=n))
+    build = time.perf_counter() - t
+    return build, mech, jnp.asarray(x0)
+
+
 def compile_times() -> list[dict]:
     rows = []
     for name, make, t1 in (("quarter car", qc.quarter_car, 3.0), ("Nikravesh AA", aa_mechanism, 2.0)):
@@ -74,10 +82,7 @@ def compile_times() -> list[dict]:
             rows.append({"scene": name, "solver": solver, "compile_s": comp, "run_s": run})
             print(rows[-1], flush=True)
     for n in CHAIN_COMPILE_N:
-        t = time.perf_counter()
-        mech, x0 = chain_mechanism(chain_geometry(n, "revolute", seed=n))
-        build = time.perf_counter() - t
-        x0 = jnp.asarray(x0)
+        build, mech, x0 = _revolute_chain(n)
         for solve in ("dense", "chain"):
             comp, run = _first_and_cached(lambda: simulate_mechanism(
                 mech, x0, jnp.zeros_like(x0), 0.0, 0.5, solver="tsit5", rtol=1e-6, atol=1e-8,
@@ -286,10 +291,7 @@ def batch() -> dict:
 def chain_steps() -> list[dict]:
     rows = []
     for n in CHAIN_STEP_N:
-        t = time.perf_counter()
-        mech, x0 = chain_mechanism(chain_geometry(n, "revolute", seed=n))
-        build = time.perf_counter() - t
-        x0 = jnp.asarray(x0)
+        build, mech, x0 = _revolute_chain(n)
         for solve in ("chain", "dense"):
             if solve == "dense" and n > 64:
                 continue
@@ -346,8 +348,8 @@ def write(res: dict) -> None:
     for a in (a1, a2):
         a.grid(True, which="both", alpha=0.3)
         a.legend(fontsize=8)
-    fig.suptitle(f"Revolute chains: compile and step cost against N ({res['environment']['cpu']})", fontsize=9)
-    save_figure(fig, NAME, dpi=110)
+    save_figure(fig, NAME, dpi=110,
+                title=f"Revolute chains: compile and step cost against N ({res['environment']['cpu']})")
 
 
 def _fmt(x: float) -> str:

@@ -173,8 +173,8 @@ def write(results: dict) -> None:
     a2.set_xlabel("links N")
     a2.set_ylabel("compile [s]")
     a2.legend(fontsize=7)
-    fig.suptitle(f"Serial chains, forward dynamics, float64, {results['environment']['cpu']}", fontsize=9)
-    save_figure(fig, NAME, dpi=120, tight=True)
+    save_figure(fig, NAME, dpi=120, tight=True,
+                title=f"Serial chains, forward dynamics, float64, {results['environment']['cpu']}")
 
 
 def markdown(results: dict) -> str:
