@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-__all__ = ["Rollout", "initial_state", "STATE"]
+__all__ = ["Rollout", "initial_state", "sampled", "STATE"]
 
 STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -67,3 +67,13 @@ class Rollout:
             mujoco.mj_kinematics(m, d)
             out.append(np.asarray(observe(m, d), dtype=float).reshape(-1))
         return np.asarray(out)
+
+
+def sampled(m: mujoco.MjModel, d: mujoco.MjData | None, t_end: float, dt: float, save_dt: float,
+            observe: Callable) -> tuple[Rollout, Callable[[np.ndarray], np.ndarray]]:
+    """``(rollout, to_traj)`` as :func:`benchmarks._wp.sweep_rollout` takes them: ``m`` run from ``d`` (None: its
+    reference pose) for ``t_end`` in steps ``dt``; ``to_traj(states)`` observes ``observe(m, d)`` at the start and
+    every ``save_dt``."""
+    ro = Rollout(m, initial_state(m, d), int(round(t_end / dt)))
+    stride = int(round(save_dt / dt))
+    return ro, lambda states: ro.trajectory(states, observe, stride)

@@ -1,4 +1,4 @@
-"""Work against precision, shared by the scene benchmarks (``wp_*.py``, ``quarter_car.py``).
+"""Work against precision, shared by the scene benchmarks (``wp_*.py``, ``quarter_car.py``, ``events.py``).
 
 Every scene is run by our diffrax solvers over a sweep of tolerances and by its MuJoCo C / MJX twins over a sweep
 of fixed steps, all against one reference trajectory (ours, Dopri8 at a tight tolerance, float64). Each run is one
@@ -7,33 +7,47 @@ of fixed steps, all against one reference trajectory (ours, Dopri8 at a tight to
     method, setting, wall_s (least of repeats, compile excluded), compile_s, error (final state), max_error (largest
     error over the saved trajectory), steps, rejected, plus scene-specific extras.
 
-:func:`sweep_ours` and :func:`sweep_fixed` produce rows; :func:`finish` adds the headline (per method, the cheapest
-run whose final error reaches the target) and the speed ratios at equal error; :func:`write` writes
-``results/<name>.{json,csv,png}``; :func:`markdown` renders its section of ``benchmarks/README.md``.
+Rows come from :func:`sweep_public` (ours as a user calls it; :func:`public_runner` builds the runner),
+:func:`sweep_ours` (ours jitted here; :func:`compile_ours` compiles one solver's run with tolerances traced, and
+passing one ``compiled`` dict to both lets the reference and the sweep share a compile), :func:`sweep_rollout`
+(a MuJoCo C twin in its native loop) and :func:`sweep_fixed` (any other fixed-step twin). :func:`finish` adds the
+headline (per method, the cheapest run whose error reaches the target), the speed ratios at equal error and the
+goal sentences (:func:`headline_notes`: ≥ 2× faster than MJX, no slower than MuJoCo C); :func:`conclude` times the
+headline ratio again interleaved (:func:`check_interleaved`) and stamps the elapsed time; :func:`write` writes
+``results/<name>.{json,csv,png}``; :func:`markdown` renders the section of ``benchmarks/README.md``; :func:`main` is
+a module's ``main``. A scene measured against its MuJoCo C twin alone gets all of that from :func:`against_twin`,
+given its :class:`Scene`, runner, reference, twin rows and notes.
 
-:func:`compile_ours` compiles one solver's run (tolerances traced); pass the same ``compiled`` dict to
-:func:`sweep_ours` so the reference (usually Dopri8 at a tight tolerance) and the sweep share one compile.
-Added later, keyword-only and optional: the earlier calls are unchanged. Wall times: the least over up to
-``repeat`` runs, the first included (functions are compiled beforehand), fewer once a row has taken
-``ROW_BUDGET_S``; :func:`headline_notes` states the goals (≥ 2× faster than MJX, no slower than MuJoCo C
-at the target error) as met or missed.
+Wall times: the least over ``repeat`` runs, the first included (functions are compiled beforehand); short runs are
+repeated until they have taken ``MIN_TOTAL_S`` (at most ``MAX_REPEAT`` times), a row stops once it has taken
+``ROW_BUDGET_S``.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from particlesim import compiler_options
+from particlesim.mechanism import simulate_mechanism
+from particlesim.twins import callbacks as mjcb
 
 from ._common import environment, machine, pyplot, report, save_figure, timed, write_csv, write_json
 
-__all__ = ["Errors", "compile_ours", "headline", "headline_notes", "sweep_ours", "sweep_fixed", "sweep_public",
-           "sweep_rollout", "finish", "write", "markdown", "fmt_time"]
+__all__ = ["Errors", "Scene", "against_twin", "check_interleaved", "compile_ours", "conclude", "finish", "fmt_time",
+           "headline", "headline_notes", "main", "markdown", "markdown_without_mjx", "public_runner", "say",
+           "sweep_fixed", "sweep_ours", "sweep_public", "sweep_rollout", "write"]
+
+
+def say(row: object) -> None:
+    """The sweeps' default log: each row printed as it is measured (flushed, so a long run's log is current when
+    piped)."""
+    print(row, flush=True)
 
 
 class Errors:
@@ -89,7 +103,7 @@ def compile_ours(make: Callable[[str], Callable], args: Sequence, solver: str, c
 
 
 def sweep_ours(make: Callable[[str], Callable], args: Sequence, solvers: Iterable[str], rtols: dict | Sequence,
-               errors: Errors, *, atol_ratio: float = 1e-2, repeat: int = 3, log: Callable = print,
+               errors: Errors, *, atol_ratio: float = 1e-2, repeat: int = 3, log: Callable = say,
                compiled: dict | None = None, label: Callable[[str], str] | None = None) -> list[dict]:
     """Rows of our solvers. ``make(solver)`` returns ``fn(*args, rtol, atol) -> (traj, steps, rejected)``; it is
     compiled once per solver (tolerances are traced arguments) and timed per tolerance. ``rtols``: one sequence
@@ -113,7 +127,7 @@ def sweep_ours(make: Callable[[str], Callable], args: Sequence, solvers: Iterabl
 def sweep_fixed(method: str, dts: Iterable[float], run: Callable[[float], object], errors: Errors, t_end: float, *,
                 compile_s: float | None = None, repeat: int = 3, block: Callable = lambda x: x,
                 extra: Callable[[object], dict] | None = None, setting: Callable[[float], str] | None = None,
-                log: Callable = print, traj: Callable[[object], object] | None = None) -> list[dict]:
+                log: Callable = say, traj: Callable[[object], object] | None = None) -> list[dict]:
     """Rows of a fixed-step twin: ``run(dt)`` returns the observed trajectory, or a dict with key ``"traj"``, or
     anything ``traj(out)`` maps to the trajectory. ``extra(out)`` may add columns (e.g. a loop residual)."""
     rows = []
@@ -127,8 +141,24 @@ def sweep_fixed(method: str, dts: Iterable[float], run: Callable[[float], object
     return rows
 
 
+def public_runner(mech, x0, xd0, t_end: float, ts, observe: Callable, *, atol_ratio: float = 1e-2,
+                  **options) -> Callable:
+    """``run(solver, rtol, saves=True)`` as :func:`sweep_public` takes it: ``simulate_mechanism`` as a user calls
+    it, from ``(x0, xd0)`` over ``[0, t_end]`` at atol = rtol × ``atol_ratio``, with ``options`` (``max_steps``,
+    ``events``, ...). With ``saves`` it saves at ``ts`` and returns the observed trajectory ``observe(solution)``,
+    without it the end state only (what is timed); either with the steps and rejected steps."""
+
+    def run(solver, rtol, saves=True):
+        s = simulate_mechanism(mech, x0, xd0, 0.0, t_end, solver=solver, rtol=rtol, atol=rtol * atol_ratio,
+                               saveat_ts=ts if saves else None, **options)
+        q = s.q.block_until_ready()
+        return (observe(s) if saves else q), s.steps, s.rejected
+
+    return run
+
+
 def sweep_public(label: str, solvers: Iterable[str], rtols: dict | Sequence, run: Callable, errors: Errors, *,
-                 repeat: int = 5, log: Callable = print) -> list[dict]:
+                 repeat: int = 5, log: Callable = say) -> list[dict]:
     """Rows of ours through the public entry point, as a user calls it (no jit of our own: the entry point caches
     its compiled program per structure and settings).
 
@@ -155,7 +185,7 @@ def sweep_public(label: str, solvers: Iterable[str], rtols: dict | Sequence, run
 
 
 def sweep_rollout(method: str, dts: Iterable[float], make: Callable[[float], tuple], errors: Errors, t_end: float,
-                  *, repeat: int = 5, log: Callable = print, setting: Callable[[float], str] | None = None,
+                  *, repeat: int = 5, log: Callable = say, setting: Callable[[float], str] | None = None,
                   extra: Callable | None = None) -> list[dict]:
     """Rows of a MuJoCo C twin through its native loop. ``make(dt) -> (rollout, to_traj)`` with ``rollout`` a
     :class:`benchmarks._native.Rollout` (only its call is timed) and ``to_traj(states)`` the observed trajectory at
@@ -224,9 +254,9 @@ CHECK_LAPS = 15
 CHECK_PER_LAP = 3
 
 
-def check_interleaved(res: dict, ours_run: Callable[[str, float], object],
+def check_interleaved(res: dict, ours: Callable[[str, float, bool], object],
                       peer_make: Callable[[float, dict], Callable], *, peer: str = "MuJoCo C",
-                      laps: int = CHECK_LAPS, per_lap: int = CHECK_PER_LAP, log: Callable = print) -> dict | None:
+                      laps: int = CHECK_LAPS, per_lap: int = CHECK_PER_LAP, log: Callable = say) -> dict | None:
     """The headline ratio to ``peer`` timed again with the two sides interleaved, by two estimators.
 
     The sweeps time every setting of one method before the next method's, minutes apart on a shared machine whose
@@ -236,9 +266,9 @@ def check_interleaved(res: dict, ours_run: Callable[[str, float], object],
     the cheaper step its time is interpolated from (the headline's log-log weight), each side ``per_lap`` times.
     Recorded in ``res["interleaved"]`` (> 1: ours faster): ``ratio``, the median over laps of the ratio of the
     lap's least times (a typical call; quartiles beside it), and ``ratio_least``, the ratio of each side's least
-    over all laps (the sweeps' estimator, at equal machine state). ``ours_run(solver, rtol)`` runs ours saving the
-    end state (blocking); ``peer_make(dt, row)`` returns a callable running the peer (its headline ``row``) at step
-    ``dt``."""
+    over all laps (the sweeps' estimator, at equal machine state). ``ours(solver, rtol, saves)``: ours as
+    :func:`sweep_public` runs it (called with ``saves=False``, the end state only, blocking); ``peer_make(dt, row)``
+    returns a callable running the peer (its headline ``row``) at step ``dt``."""
     best = res["ours_best"]
     cands = [r for m, r in res["headline"].items() if m.startswith(peer) and r]
     if best is None or not cands or not best["method"].startswith("ours "):
@@ -249,7 +279,7 @@ def check_interleaved(res: dict, ours_run: Callable[[str, float], object],
     solver, rtol = best["method"][len("ours "):], float(best["setting"].split()[1])
     dts = [p["dt"]] + ([p["interp_dt"]] if p.get("interp_dt") is not None else [])
     w = p.get("interp_weight", 0.0)
-    runs = [lambda: ours_run(solver, rtol)] + [peer_make(dt, p) for dt in dts]
+    runs = [lambda: ours(solver, rtol, False)] + [peer_make(dt, p) for dt in dts]
     for fn in runs:  # warm: the programs are compiled and the models built already
         fn()
 
@@ -280,24 +310,49 @@ def check_interleaved(res: dict, ours_run: Callable[[str, float], object],
     return out
 
 
+def conclude(res: dict, started: float, ours: Callable | None = None, peer_make: Callable | None = None,
+             **check) -> dict:
+    """The end of a scene's run: with ``peer_make``, the headline ratio timed again interleaved
+    (:func:`check_interleaved`, ``check`` its options); then any passive callback a twin builder installed is
+    removed, and ``elapsed_s`` counts from ``started`` to now."""
+    try:
+        if peer_make is not None:
+            check_interleaved(res, ours, peer_make, **check)
+    finally:
+        mjcb.uninstall()
+    res["elapsed_s"] = time.perf_counter() - started
+    return res
+
+
 def finish(name: str, scene: str, t_end: float, target: float, unit: str, what: str, reference: dict,
-           rows: list[dict], started: float, notes: Sequence[str] = (), key: str = "error") -> dict:
+           rows: list[dict], started: float, notes: Sequence[str] = (), key: str = "error",
+           goals: Sequence[str] = ()) -> dict:
     """The results record: rows, headline (cheapest run per method whose ``key`` error reaches ``target``: "error"
     the final state, "max_error" the whole run) and the ratios of our best to MuJoCo C's and MJX's best at that
-    error (> 1: ours faster)."""
+    error (> 1: ours faster). The notes end with the goal sentences (:func:`headline_notes`) of the peers in
+    ``goals`` ("MJX", "MuJoCo C"); ``elapsed_s`` counts from ``started``."""
     h = headline(rows, target, key)
-    return {"benchmark": name, "scene": scene, "environment": environment(), "t_end_s": t_end,
-            "target_error": target, "error_key": key, "unit": unit, "error_what": what, "reference": reference,
-            "rows": rows,
-            **h, "notes": list(notes),
-            "elapsed_s": time.perf_counter() - started}
+    res = {"benchmark": name, "scene": scene, "environment": environment(), "t_end_s": t_end,
+           "target_error": target, "error_key": key, "unit": unit, "error_what": what, "reference": reference,
+           "rows": rows, **h, "notes": list(notes)}
+    res["notes"] += headline_notes(res, peers=goals)
+    res["elapsed_s"] = time.perf_counter() - started
+    return res
 
 
-def headline_notes(results: dict, *, mjx_goal: float = 2.0, c_goal: float = 1.0) -> list[str]:
+#: The peers our goals name, in the order :func:`headline_notes` states them.
+PEERS = ("MJX", "MuJoCo C")
+
+
+def headline_notes(results: dict, *, mjx_goal: float = 2.0, c_goal: float = 1.0,
+                   peers: Sequence[str] = PEERS) -> list[str]:
     """Sentences on the goals at the target error: ours ≥ ``mjx_goal``× as fast as MJX and ≥ ``c_goal``×
-    as fast as MuJoCo C (equal simulated time, so per simulated second too), each met, missed or not measurable."""
+    as fast as MuJoCo C (equal simulated time, so per simulated second too), each met, missed or not measurable;
+    one per peer in ``peers``."""
     out = []
     for peer, goal in (("MJX", mjx_goal), ("MuJoCo C", c_goal)):
+        if peer not in peers:
+            continue
         x = results["speedup_vs"].get(peer)
         want = f"≥ {goal:g}× as fast as {peer}"
         tgt = f"{results['target_error']:g} {results['unit']}"
@@ -398,13 +453,6 @@ def markdown(results: dict, *, all_rows: bool = False) -> str:
     return "\n".join(lines)
 
 
-def finish_without_mjx(results: dict, started: float) -> dict:
-    """For scenes without an MJX row: add the MuJoCo C goal sentence and the elapsed time."""
-    results["notes"] += [n for n in headline_notes(results) if "MJX" not in n]
-    results["elapsed_s"] = time.perf_counter() - started
-    return results
-
-
 def markdown_without_mjx(results: dict) -> str:
     """All rows, the headline's MJX clause replaced by "(no MJX row)"."""
     return markdown(results, all_rows=True).replace("; MJX: no run reached the target", " (no MJX row)")
@@ -413,3 +461,55 @@ def markdown_without_mjx(results: dict) -> str:
 def main(run: Callable[[], dict], to_markdown: Callable[[dict], str]) -> dict:
     """A benchmark module's ``main``: run, write JSON/CSV/PNG, print the table and the elapsed time."""
     return report(run, write, to_markdown, devices=True, elapsed=True)
+
+
+#: Wording the scene modules' notes share: how MuJoCo C ran, how its time is read at the target, how ours ran.
+NATIVE_LOOP = "MuJoCo C runs in its native loop (`mujoco.rollout`, calling thread)"
+INTERPOLATED = "the ratios use its time interpolated (log-log) to exactly the target between the bracketing steps"
+OURS_PUBLIC = ("Ours: `simulate_mechanism` as a user calls it (compile cached, listed separately), timed saving the "
+               "end state")
+
+
+def soft_setting(dt: float) -> str:
+    """The setting column of a twin whose loops are soft at MuJoCo's limit (``solref`` time constant 2 dt)."""
+    return f"dt {dt:g} (solref {2 * dt:g} s)"
+
+
+class Scene(NamedTuple):
+    """What a scene's section states: its results name, title, simulated time [s], target error, the error's unit,
+    what the error measures, and the error the target applies to ("error": the final state, "max_error": the
+    largest over the run)."""
+
+    name: str
+    title: str
+    t_end: float
+    target: float
+    unit: str
+    what: str
+    key: str = "error"
+
+
+def against_twin(scene: Scene, build: Callable[[], tuple], twin_rows: Callable[[Errors], list[dict]],
+                 sweep: dict, notes: Sequence[str], *, repeat: int = 5,
+                 peer_make: Callable | None = None) -> tuple[Callable, Callable, Callable]:
+    """``(run, markdown, main)`` of a module that measures ours against a MuJoCo C twin alone (no MJX row).
+
+    ``build() -> (ours, reference, record)``: ``ours(solver, rtol, saves)`` as :func:`sweep_public` runs it, the
+    reference trajectory the errors are taken against, and the results' ``reference`` record (``{"what": ...}``).
+    Ours runs over ``sweep`` (solver -> rtols, ``repeat`` as in :func:`sweep_public`), the twin's rows are
+    ``twin_rows(errors)``; the notes are ``notes`` and the MuJoCo C goal sentence. With ``peer_make`` the headline
+    ratio is timed again interleaved (:func:`conclude`). The table lists every row (:func:`markdown_without_mjx`)."""
+
+    def run() -> dict:
+        started = time.perf_counter()
+        ours, reference, record = build()
+        errors = Errors(reference)
+        rows = sweep_public("ours", list(sweep), sweep, ours, errors, repeat=repeat)
+        rows += twin_rows(errors)
+        res = finish(*scene[:6], record, rows, started, notes, key=scene.key, goals=("MuJoCo C",))
+        return conclude(res, started, ours, peer_make)
+
+    def module_main() -> dict:
+        return main(run, markdown_without_mjx)
+
+    return run, markdown_without_mjx, module_main

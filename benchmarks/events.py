@@ -44,15 +44,8 @@ def _scene():
 
 
 def _runner(mech, x0, cols, events):
-    xd0 = jnp.zeros_like(x0)
-
-    def run(solver, rtol, saves=True):
-        s = simulate_mechanism(mech, x0, xd0, 0.0, T_END, solver=solver, rtol=rtol, atol=rtol * 1e-2,
-                               saveat_ts=TS if saves else None, events=events)
-        q = s.q.block_until_ready()
-        return (np.asarray(q[:, cols]) if saves else q), s.steps, s.rejected
-
-    return run
+    return _wp.public_runner(mech, x0, jnp.zeros_like(x0), T_END, TS, lambda s: np.asarray(s.q[:, cols]),
+                             events=events)
 
 
 def _gradients(mech, x0, cols) -> list[dict]:
@@ -99,8 +92,7 @@ def run() -> dict:
     errors = _wp.Errors(ref)
     rows = []
     for label, ev in (("ours evented", True), ("ours un-evented", False)):
-        rows += _wp.sweep_public(label, ["dopri5", "dopri8"], RTOLS, _runner(mech, x0, cols, ev), errors,
-                                 log=lambda r: print(r, flush=True))
+        rows += _wp.sweep_public(label, ["dopri5", "dopri8"], RTOLS, _runner(mech, x0, cols, ev), errors)
     grads = _gradients(mech, x0, cols)
     notes = [
         "Error: the largest coordinate error of the wheel and chassis heights over 27 saves [m] against the evented "

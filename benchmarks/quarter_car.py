@@ -132,14 +132,8 @@ def run() -> dict:
     ]
     res = _wp.finish(NAME, "Quarter car, free response", T_END, TARGET, "m", "|chassis z − reference|",
                      {"what": f"ours Dopri8 rtol {REF['rtol']:g} atol {REF['rtol'] * 1e-2:g}",
-                      "steps": int(ref_steps)}, rows, started, notes=notes)
-    res["notes"] += _wp.headline_notes(res)
-    try:
-        _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False), lambda dt, _: _c_make(dt)[0])
-    finally:
-        mjcb.uninstall()
-    res["elapsed_s"] = time.perf_counter() - started
-    return res
+                      "steps": int(ref_steps)}, rows, started, notes=notes, goals=_wp.PEERS)
+    return _wp.conclude(res, started, ours, lambda dt, _: _c_make(dt)[0])
 
 
 def markdown(results: dict) -> str:

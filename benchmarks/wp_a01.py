@@ -15,7 +15,6 @@ Run: ``python -m benchmarks.wp_a01``.
 
 from __future__ import annotations
 
-import time
 
 import particlesim  # noqa: F401  (float64)
 import jax.numpy as jnp
@@ -23,11 +22,10 @@ import mujoco
 import numpy as np
 from scipy.special import ellipj, ellipk
 
-from particlesim.mechanism import simulate_mechanism
 from particlesim.scenes.iftomm import A01, a01_pendulum
 
 from . import _wp
-from ._native import Rollout, initial_state
+from ._native import sampled
 
 NAME = "wp_a01"
 T_END = A01["t_end"]
@@ -37,6 +35,12 @@ TS = np.linspace(0.0, T_END, A01["outputs"] + 1)
 RTOLS = (1e-6, 1e-7, 1e-8, 5e-9, 2e-9, 1e-9, 5e-10, 2e-10, 1e-10, 1e-11)
 EXPLICIT = {"tsit5": RTOLS, "dopri5": RTOLS, "dopri8": RTOLS}
 C_RK4_STEPS = (2e-2, 1e-2, 5e-3, 2.5e-3, 1e-3)
+SCENE = _wp.Scene(NAME, "Simple pendulum (IFToMM A01)", T_END, TARGET, "m", "bob over 2000 s", key="max_error")
+NOTES = (
+    "Error: max over the 4001 outputs (0.5 s apart) of the bob's largest coordinate error [m] against the exact "
+    "solution (Jacobi elliptic functions); the benchmark's high precision is 1e-3 m.",
+    f"{_wp.NATIVE_LOOP}; {_wp.INTERPOLATED}. {_wp.OURS_PUBLIC}.",
+)
 
 
 def exact(ts):
@@ -62,59 +66,27 @@ def twin_xml(dt: float) -> str:
 
 
 def _ours(mech, x0):
-    xd0 = jnp.zeros_like(x0)
     sl = mech.free_slice("P1")
-
-    def run(solver, rtol, saves=True):
-        s = simulate_mechanism(mech, x0, xd0, 0.0, T_END, solver=solver, rtol=rtol, atol=rtol * 1e-2,
-                               max_steps=4_000_000, saveat_ts=TS if saves else None)
-        q = s.q.block_until_ready()
-        return (np.asarray(q[:, sl][:, :2]) if saves else q), s.steps, s.rejected
-
-    return run
+    return _wp.public_runner(mech, x0, jnp.zeros_like(x0), T_END, TS, lambda s: np.asarray(s.q[:, sl][:, :2]),
+                             max_steps=4_000_000)
 
 
 def _c_rows(errors) -> list[dict]:
     def make(dt):
         m = mujoco.MjModel.from_xml_string(twin_xml(dt))
-        ro = Rollout(m, initial_state(m), int(round(T_END / dt)))
         site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "P1")
-        stride = int(round((TS[1] - TS[0]) / dt))
-
-        def to_traj(states):
-            return ro.trajectory(states, lambda mm, dd: dd.site_xpos[site][:2].copy(), stride)
-
-        return ro, to_traj
+        return sampled(m, None, T_END, dt, TS[1] - TS[0], lambda mm, dd: dd.site_xpos[site][:2].copy())
 
     return _wp.sweep_rollout("MuJoCo C twin RK4 (mujoco.rollout)", C_RK4_STEPS, make, errors, T_END,
-                             setting=lambda dt: f"dt {dt:g}", log=lambda r: print(r, flush=True))
+                             setting=lambda dt: f"dt {dt:g}")
 
 
-def run() -> dict:
-    started = time.perf_counter()
+def _build():
     mech, x0 = a01_pendulum()
-    x0 = jnp.asarray(x0)
-    errors = _wp.Errors(exact(TS))
-    rows = _wp.sweep_public("ours", list(EXPLICIT), EXPLICIT, _ours(mech, x0), errors,
-                            log=lambda r: print(r, flush=True))
-    rows += _c_rows(errors)
-    notes = [
-        "Error: max over the 4001 outputs (0.5 s apart) of the bob's largest coordinate error [m] against the exact "
-        "solution (Jacobi elliptic functions); the benchmark's high precision is 1e-3 m.",
-        "MuJoCo C runs in its native loop (`mujoco.rollout`, calling thread); the ratios use its time interpolated "
-        "(log-log) to exactly the target between the bracketing steps. Ours: `simulate_mechanism` as a user calls "
-        "it (compile cached, listed separately), timed saving the end state.",
-    ]
-    res = _wp.finish(NAME, "Simple pendulum (IFToMM A01)", T_END, TARGET, "m", "bob over 2000 s",
-                     {"what": "exact solution (Jacobi elliptic functions)"}, rows, started, notes, key="max_error")
-    return _wp.finish_without_mjx(res, started)
+    return _ours(mech, jnp.asarray(x0)), exact(TS), {"what": "exact solution (Jacobi elliptic functions)"}
 
 
-markdown = _wp.markdown_without_mjx
-
-
-def main() -> dict:
-    return _wp.main(run, markdown)
+run, markdown, main = _wp.against_twin(SCENE, _build, _c_rows, EXPLICIT, NOTES)
 
 
 if __name__ == "__main__":

@@ -15,19 +15,16 @@ Run: ``python -m benchmarks.wp_a02``.
 
 from __future__ import annotations
 
-import time
-
 import particlesim  # noqa: F401  (float64)
 import jax.numpy as jnp
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from particlesim.mechanism import simulate_mechanism
 from particlesim.twins.four_bar import b0_observer, twin_model
 from particlesim.scenes.iftomm import A02, a02_four_bar, a02_reduced
 
 from . import _wp
-from ._native import Rollout, initial_state
+from ._native import sampled
 
 NAME = "wp_a02"
 T_END = A02["t_end"]
@@ -37,6 +34,14 @@ TS = np.linspace(0.0, T_END, A02["outputs"] + 1)
 RTOLS = (1e-4, 1e-5, 1e-6, 5e-7, 2e-7, 1e-7, 5e-8, 2e-8, 1e-8)
 EXPLICIT = {"tsit5": RTOLS, "dopri8": RTOLS}
 C_RK4_STEPS = (2e-3, 1e-3, 5e-4, 2.5e-4)
+SCENE = _wp.Scene(NAME, "N-four-bar, N = 40 (IFToMM A02)", T_END, TARGET, "m", "B0 over 20 s", key="max_error")
+NOTES = (
+    "Error: max over 401 saves (0.05 s apart) of the largest coordinate error of B0 [m] against the "
+    "one-coordinate parallelogram model (SciPy DOP853, 1e-13). Target: the benchmark specification's 1e-3 m.",
+    f"{_wp.NATIVE_LOOP}; its 40 loops are soft (`solref` 2 dt), so its error falls about linearly with dt (7e-4 m at "
+    "dt 1e-3, 1.3e-4 m at 2.5e-4 in a Python-stepped check) and it cannot reach 1e-6 m at any affordable step. "
+    f"{_wp.OURS_PUBLIC}; 81 rows, least-squares multipliers.",
+)
 
 
 def reference() -> np.ndarray:
@@ -48,54 +53,26 @@ def reference() -> np.ndarray:
 
 def _ours(mech, x0, xd0):
     sl = mech.free_slice("B0")
-
-    def run(solver, rtol, saves=True):
-        s = simulate_mechanism(mech, x0, xd0, 0.0, T_END, solver=solver, rtol=rtol, atol=rtol, max_steps=1_000_000,
-                               saveat_ts=TS if saves else None)
-        q = s.q.block_until_ready()
-        return (np.asarray(q[:, sl])[:, :2] if saves else q), s.steps, s.rejected
-
-    return run
+    return _wp.public_runner(mech, x0, xd0, T_END, TS, lambda s: np.asarray(s.q[:, sl])[:, :2], atol_ratio=1,
+                             max_steps=1_000_000)
 
 
 def _c_rows(errors) -> list[dict]:
     def make(dt):
         m, d = twin_model(A02["n"], dt)
-        ro = Rollout(m, initial_state(m, d), int(round(T_END / dt)))
-        stride = int(round((TS[1] - TS[0]) / dt))
-        obs = b0_observer(m)
-        return ro, lambda states: ro.trajectory(states, obs, stride)
+        return sampled(m, d, T_END, dt, TS[1] - TS[0], b0_observer(m))
 
     return _wp.sweep_rollout("MuJoCo C twin RK4 (mujoco.rollout)", C_RK4_STEPS, make, errors, T_END,
-                             setting=lambda dt: f"dt {dt:g} (solref {2 * dt:g} s)", log=lambda r: print(r, flush=True))
+                             setting=_wp.soft_setting)
 
 
-def run() -> dict:
-    started = time.perf_counter()
+def _build():
     mech, x0, xd0 = a02_four_bar()
-    ours = _ours(mech, jnp.asarray(x0), jnp.asarray(xd0))
-    errors = _wp.Errors(reference())
-    rows = _wp.sweep_public("ours", list(EXPLICIT), EXPLICIT, ours, errors, repeat=2,
-                            log=lambda r: print(r, flush=True))
-    rows += _c_rows(errors)
-    notes = [
-        "Error: max over 401 saves (0.05 s apart) of the largest coordinate error of B0 [m] against the "
-        "one-coordinate parallelogram model (SciPy DOP853, 1e-13). Target: the benchmark specification's 1e-3 m.",
-        "MuJoCo C runs in its native loop (`mujoco.rollout`, calling thread); its 40 loops are soft (`solref` 2 dt), "
-        "so its error falls about linearly with dt (7e-4 m at dt 1e-3, 1.3e-4 m at 2.5e-4 in a Python-stepped check) "
-        "and it cannot reach 1e-6 m at any affordable step. Ours: `simulate_mechanism` as a user calls it (compile "
-        "cached, listed separately), timed saving the end state; 81 rows, least-squares multipliers.",
-    ]
-    res = _wp.finish(NAME, "N-four-bar, N = 40 (IFToMM A02)", T_END, TARGET, "m", "B0 over 20 s",
-                     {"what": "the one-coordinate parallelogram model"}, rows, started, notes, key="max_error")
-    return _wp.finish_without_mjx(res, started)
+    return (_ours(mech, jnp.asarray(x0), jnp.asarray(xd0)), reference(),
+            {"what": "the one-coordinate parallelogram model"})
 
 
-markdown = _wp.markdown_without_mjx
-
-
-def main() -> dict:
-    return _wp.main(run, markdown)
+run, markdown, main = _wp.against_twin(SCENE, _build, _c_rows, EXPLICIT, NOTES, repeat=2)
 
 
 if __name__ == "__main__":

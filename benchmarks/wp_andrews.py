@@ -16,14 +16,11 @@ Run: ``python -m benchmarks.wp_andrews``.
 
 from __future__ import annotations
 
-import time
-
 import particlesim  # noqa: F401  (float64)
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from particlesim.mechanism import simulate_mechanism
 from particlesim.scenes import andrews as an
 from particlesim.twins.andrews import twin_xml
 
@@ -39,21 +36,23 @@ RTOLS = (1e-5, 5e-6, 2e-6, 1e-6, 5e-7, 2e-7, 1e-7, 1e-8, 1e-9, 1e-10)
 EXPLICIT = {"tsit5": RTOLS, "dopri5": RTOLS, "dopri8": RTOLS}
 C_RK4_STEPS = (4e-5, 2e-5, 1e-5, 5e-6, 2.5e-6)
 SCALE = np.abs(an.REFERENCE_Q)
+SCENE = _wp.Scene(NAME, "Andrews' squeezing mechanism (IFToMM A03)", T_END, TARGET, "rel.",
+                  "joint angles at 0.03 s, relative")
+NOTES = (
+    "Error: max over the seven joint angles of |q - q_ref| / |q_ref| at 0.03 s, q_ref the published reference "
+    "(the only published state; final and largest error coincide).",
+    f"{_wp.NATIVE_LOOP}, every force a native element; its loops are soft (`solref` 2 dt), so its error falls as dt² "
+    "rather than dt⁴. The ratios use its time interpolated (log-log) to exactly the target between the bracketing "
+    f"steps. {_wp.OURS_PUBLIC}.",
+)
 
 
 def _ours(mech, x0):
-    xd0 = jnp.zeros_like(x0)
+    def angles(s):  # unwrapped over the dense saves; the error is taken at the end
+        ang, _ = an.joint_angles(mech, np.asarray(s.q), np.asarray(s.qd))
+        return ang[-1:] / SCALE
 
-    def run(solver, rtol, saves=True):
-        s = simulate_mechanism(mech, x0, xd0, 0.0, T_END, solver=solver, rtol=rtol, atol=rtol * 1e-3,
-                               max_steps=1_000_000, saveat_ts=TS if saves else None)
-        q = s.q.block_until_ready()
-        if not saves:
-            return q, s.steps, s.rejected
-        ang, _ = an.joint_angles(mech, np.asarray(q), np.asarray(s.qd))
-        return (ang[-1:] / SCALE), s.steps, s.rejected
-
-    return run
+    return _wp.public_runner(mech, x0, jnp.zeros_like(x0), T_END, TS, angles, atol_ratio=1e-3, max_steps=1_000_000)
 
 
 def _c_rows(errors) -> list[dict]:
@@ -73,35 +72,16 @@ def _c_rows(errors) -> list[dict]:
         return ro, to_traj
 
     return _wp.sweep_rollout("MuJoCo C twin RK4 (mujoco.rollout)", C_RK4_STEPS, make, errors, T_END,
-                             setting=lambda dt: f"dt {dt:g} (solref {2 * dt:g} s)", log=lambda r: print(r, flush=True))
+                             setting=_wp.soft_setting)
 
 
-def run() -> dict:
-    started = time.perf_counter()
+def _build():
     mech, x0 = an.andrews_mechanism()
-    ours = _ours(mech, jnp.asarray(x0))
-    errors = _wp.Errors((an.REFERENCE_Q / SCALE)[None])
-    rows = _wp.sweep_public("ours", list(EXPLICIT), EXPLICIT, ours, errors, log=lambda r: print(r, flush=True))
-    rows += _c_rows(errors)
-    notes = [
-        "Error: max over the seven joint angles of |q - q_ref| / |q_ref| at 0.03 s, q_ref the published reference "
-        "(the only published state; final and largest error coincide).",
-        "MuJoCo C runs in its native loop (`mujoco.rollout`, calling thread), every force a native element; its "
-        "loops are soft (`solref` 2 dt), so its error falls as dt² rather than dt⁴. The ratios use its time "
-        "interpolated (log-log) to exactly the target between the bracketing steps. Ours: `simulate_mechanism` as "
-        "a user calls it (compile cached, listed separately), timed saving the end state.",
-    ]
-    res = _wp.finish(NAME, "Andrews' squeezing mechanism (IFToMM A03)", T_END, TARGET, "rel.",
-                     "joint angles at 0.03 s, relative", {"what": "published reference (PSIDE, tol 1e-14)"},
-                     rows, started, notes)
-    return _wp.finish_without_mjx(res, started)
+    return (_ours(mech, jnp.asarray(x0)), (an.REFERENCE_Q / SCALE)[None],
+            {"what": "published reference (PSIDE, tol 1e-14)"})
 
 
-markdown = _wp.markdown_without_mjx
-
-
-def main() -> dict:
-    return _wp.main(run, markdown)
+run, markdown, main = _wp.against_twin(SCENE, _build, _c_rows, EXPLICIT, NOTES)
 
 
 if __name__ == "__main__":

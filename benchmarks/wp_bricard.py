@@ -15,19 +15,16 @@ Run: ``python -m benchmarks.wp_bricard``.
 
 from __future__ import annotations
 
-import time
-
 import particlesim  # noqa: F401  (float64)
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from particlesim.mechanism import simulate_mechanism
 from particlesim.twins.bricard import twin_xml
 from particlesim.scenes.iftomm import A04, a04_bricard
 
 from . import _wp
-from ._native import Rollout, initial_state
+from ._native import sampled
 
 NAME = "wp_bricard"
 T_END = A04["t_end"]
@@ -37,64 +34,38 @@ TS = np.linspace(0.0, T_END, 101)
 RTOLS = (1e-5, 5e-6, 2e-6, 1e-6, 5e-7, 2e-7, 1e-7, 1e-8, 1e-9, 1e-10)
 EXPLICIT = {"tsit5": RTOLS, "dopri5": RTOLS, "dopri8": RTOLS}
 C_RK4_STEPS = (5e-3, 4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4)
+SCENE = _wp.Scene(NAME, "Bricard's linkage (IFToMM A04)", T_END, TARGET, "m", "P3 over 10 s", key="max_error")
+NOTES = (
+    "Error: max over 101 saves (0.1 s apart) of the largest coordinate error of P3 [m] against ours at Dopri8 "
+    "rtol 1e-13 (no published trajectory is readable; the MuJoCo twin converges to this reference as dt²).",
+    f"{_wp.NATIVE_LOOP}, its loop closure soft (`solref` 2 dt); {_wp.INTERPOLATED}. {_wp.OURS_PUBLIC}; 24 rows of "
+    "rank 23, least-squares multipliers.",
+)
 
 
 def _ours(mech, x0):
-    xd0 = jnp.zeros_like(x0)
     sl = mech.free_slice("P3")
-
-    def run(solver, rtol, saves=True):
-        s = simulate_mechanism(mech, x0, xd0, 0.0, T_END, solver=solver, rtol=rtol, atol=rtol * 1e-2,
-                               max_steps=1_000_000, saveat_ts=TS if saves else None)
-        q = s.q.block_until_ready()
-        return (np.asarray(q[:, sl]) if saves else q), s.steps, s.rejected
-
-    return run
+    return _wp.public_runner(mech, x0, jnp.zeros_like(x0), T_END, TS, lambda s: np.asarray(s.q[:, sl]),
+                             max_steps=1_000_000)
 
 
 def _c_rows(errors) -> list[dict]:
     def make(dt):
         m = mujoco.MjModel.from_xml_string(twin_xml(dt))
-        ro = Rollout(m, initial_state(m), int(round(T_END / dt)))
         site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "P3")
-        stride = int(round((TS[1] - TS[0]) / dt))
-
-        def to_traj(states):
-            return ro.trajectory(states, lambda mm, dd: dd.site_xpos[site].copy(), stride)
-
-        return ro, to_traj
+        return sampled(m, None, T_END, dt, TS[1] - TS[0], lambda mm, dd: dd.site_xpos[site].copy())
 
     return _wp.sweep_rollout("MuJoCo C twin RK4 (mujoco.rollout)", C_RK4_STEPS, make, errors, T_END,
-                             setting=lambda dt: f"dt {dt:g} (solref {2 * dt:g} s)", log=lambda r: print(r, flush=True))
+                             setting=_wp.soft_setting)
 
 
-def run() -> dict:
-    started = time.perf_counter()
+def _build():
     mech, x0 = a04_bricard()
-    x0 = jnp.asarray(x0)
-    ours = _ours(mech, x0)
-    ref = ours("dopri8", 1e-13)[0]
-    errors = _wp.Errors(ref)
-    rows = _wp.sweep_public("ours", list(EXPLICIT), EXPLICIT, ours, errors, log=lambda r: print(r, flush=True))
-    rows += _c_rows(errors)
-    notes = [
-        "Error: max over 101 saves (0.1 s apart) of the largest coordinate error of P3 [m] against ours at Dopri8 "
-        "rtol 1e-13 (no published trajectory is readable; the MuJoCo twin converges to this reference as dt²).",
-        "MuJoCo C runs in its native loop (`mujoco.rollout`, calling thread), its loop closure soft (`solref` 2 dt); "
-        "the ratios use its time interpolated (log-log) to exactly the target between the bracketing steps. Ours: "
-        "`simulate_mechanism` as a user calls it (compile cached, listed separately), timed saving the end state; "
-        "24 rows of rank 23, least-squares multipliers.",
-    ]
-    res = _wp.finish(NAME, "Bricard's linkage (IFToMM A04)", T_END, TARGET, "m", "P3 over 10 s",
-                     {"what": "ours at Dopri8 rtol 1e-13"}, rows, started, notes, key="max_error")
-    return _wp.finish_without_mjx(res, started)
+    ours = _ours(mech, jnp.asarray(x0))
+    return ours, ours("dopri8", 1e-13)[0], {"what": "ours at Dopri8 rtol 1e-13"}
 
 
-markdown = _wp.markdown_without_mjx
-
-
-def main() -> dict:
-    return _wp.main(run, markdown)
+run, markdown, main = _wp.against_twin(SCENE, _build, _c_rows, EXPLICIT, NOTES)
 
 
 if __name__ == "__main__":

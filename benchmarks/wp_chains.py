@@ -122,12 +122,9 @@ def run_chain(joint: str, n: int) -> dict:
     res = _wp.finish(f"{NAME}_{joint}", f"{joint.capitalize()} chain, N = {n}, released from rest", T_END, TARGET,
                       "m", "max |particle position − reference| over the free particles",
                       {"what": f"ours Dopri8 rtol {REF['rtol']:g} atol {REF['rtol'] * 1e-2:g}", "steps": int(ref_steps)},
-                      rows, started, notes=notes)
-    res["notes"] += _wp.headline_notes(res)
+                      rows, started, notes=notes, goals=_wp.PEERS)
     mujoco_at = _mujoco_rollout(geom, sites)
-    _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False), lambda dt, _: mujoco_at(dt)[0])
-    res["elapsed_s"] = time.perf_counter() - started
-    return res
+    return _wp.conclude(res, started, ours, lambda dt, _: mujoco_at(dt)[0])
 
 
 def run() -> dict:

@@ -15,19 +15,16 @@ Run: ``python -m benchmarks.wp_flyball``.
 
 from __future__ import annotations
 
-import time
-
 import particlesim  # noqa: F401  (float64)
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from particlesim.mechanism import simulate_mechanism
 from particlesim.twins.flyball import twin_xml
 from particlesim.scenes.iftomm import A05, a05_flyball, flyball_slider_height
 
 from . import _wp
-from ._native import Rollout, initial_state
+from ._native import sampled
 
 NAME = "wp_flyball"
 T_END = A05["t_end"]
@@ -37,16 +34,25 @@ RTOLS = (1e-4, 1e-5, 1e-6, 1e-7, 1e-8)
 SWEEP = {"tsit5": RTOLS, "dopri8": RTOLS, "kvaerno5": (1e-6, 1e-7, 1e-8, 1e-9)}
 C_RK4_STEPS = (4e-4, 3.5e-4, 3e-4, 2.5e-4, 2e-4, 1e-4)
 C_IMPLICIT_STEPS = (1e-3, 1e-4, 1e-5)
+SCENE = _wp.Scene(NAME, "Flyball governor (IFToMM A05)", T_END, TARGET, "m", "slider height over 10 s",
+                  key="max_error")
+NOTES = (
+    "Error: max over 101 saves (0.1 s apart) of the slider height error [m] against ours at Dopri8 rtol 1e-12 "
+    "(no published trajectory is readable; the MuJoCo twin, a tree with tendon springs, agrees with it to "
+    "4e-13 m at RK4 dt 1e-4).",
+    f"{_wp.NATIVE_LOOP}, springs and dampers as tendons; {_wp.INTERPOLATED}. {_wp.OURS_PUBLIC}. Both explicit "
+    "integrators are held to steps of ~2e-4 s by the damper's rate c/m ≈ 1.3e4 1/s. Kvaerno5 is not held by it; its "
+    "steps are bounded by accuracy (and by stage solves that stop converging at steps of ~0.02 s, counted in "
+    "benchmarks/results/implicit_cost.json).",
+    "MuJoCo's `implicitfast` rows do not converge to the RK4 solution here (0.05 m at dt 1e-5): not "
+    "investigated; RK4 is the baseline. RK4 is unstable from dt 3e-4 (its 3e-4 and 4e-4 runs diverge), so its "
+    "time is that of dt 2.5e-4, not interpolated.",
+)
 
 
 def _ours(mech, x0, xd0):
-    def run(solver, rtol, saves=True):
-        s = simulate_mechanism(mech, x0, xd0, 0.0, T_END, solver=solver, rtol=rtol, atol=rtol, max_steps=1_000_000,
-                               saveat_ts=TS if saves else None)
-        q = s.q.block_until_ready()
-        return (np.asarray(flyball_slider_height(mech, q)) if saves else q), s.steps, s.rejected
-
-    return run
+    return _wp.public_runner(mech, x0, xd0, T_END, TS, lambda s: np.asarray(flyball_slider_height(mech, s.q)),
+                             atol_ratio=1, max_steps=1_000_000)
 
 
 def _c_rows(errors, integrator, dts) -> list[dict]:
@@ -54,50 +60,23 @@ def _c_rows(errors, integrator, dts) -> list[dict]:
         m = mujoco.MjModel.from_xml_string(twin_xml(dt).replace('integrator="RK4"', f'integrator="{integrator}"'))
         d = mujoco.MjData(m)
         d.qvel[0] = A05["omega0"]
-        ro = Rollout(m, initial_state(m, d), int(round(T_END / dt)))
-        stride = int(round((TS[1] - TS[0]) / dt))
+        ro, to_traj = sampled(m, d, T_END, dt, TS[1] - TS[0], lambda mm, dd: A05["s0"] + dd.qpos[1])
+        return ro, lambda states: to_traj(states).reshape(-1)
 
-        def to_traj(states):
-            return ro.trajectory(states, lambda mm, dd: A05["s0"] + dd.qpos[1], stride).reshape(-1)
-
-        return ro, to_traj
-
-    return _wp.sweep_rollout(f"MuJoCo C twin {integrator} (mujoco.rollout)", dts, make, errors, T_END,
-                             log=lambda r: print(r, flush=True))
+    return _wp.sweep_rollout(f"MuJoCo C twin {integrator} (mujoco.rollout)", dts, make, errors, T_END)
 
 
-def run() -> dict:
-    started = time.perf_counter()
+def _twin_rows(errors) -> list[dict]:
+    return _c_rows(errors, "RK4", C_RK4_STEPS) + _c_rows(errors, "implicitfast", C_IMPLICIT_STEPS)
+
+
+def _build():
     mech, x0, xd0 = a05_flyball()
     ours = _ours(mech, jnp.asarray(x0), jnp.asarray(xd0))
-    errors = _wp.Errors(ours("dopri8", 1e-12)[0])
-    rows = _wp.sweep_public("ours", list(SWEEP), SWEEP, ours, errors, log=lambda r: print(r, flush=True))
-    rows += _c_rows(errors, "RK4", C_RK4_STEPS)
-    rows += _c_rows(errors, "implicitfast", C_IMPLICIT_STEPS)
-    notes = [
-        "Error: max over 101 saves (0.1 s apart) of the slider height error [m] against ours at Dopri8 rtol 1e-12 "
-        "(no published trajectory is readable; the MuJoCo twin, a tree with tendon springs, agrees with it to "
-        "4e-13 m at RK4 dt 1e-4).",
-        "MuJoCo C runs in its native loop (`mujoco.rollout`, calling thread), springs and dampers as tendons; the "
-        "ratios use its time interpolated (log-log) to exactly the target between the bracketing steps. Ours: "
-        "`simulate_mechanism` as a user calls it (compile cached, listed separately), timed saving the end state. "
-        "Both explicit integrators are held to steps of ~2e-4 s by the damper's rate c/m ≈ 1.3e4 1/s. Kvaerno5 is "
-        "not held by it; its steps are bounded by accuracy (and by stage solves that stop converging at steps of "
-        "~0.02 s, counted in benchmarks/results/implicit_cost.json).",
-        "MuJoCo's `implicitfast` rows do not converge to the RK4 solution here (0.05 m at dt 1e-5): not "
-        "investigated; RK4 is the baseline. RK4 is unstable from dt 3e-4 (its 3e-4 and 4e-4 runs diverge), so its "
-        "time is that of dt 2.5e-4, not interpolated.",
-    ]
-    res = _wp.finish(NAME, "Flyball governor (IFToMM A05)", T_END, TARGET, "m", "slider height over 10 s",
-                     {"what": "ours at Dopri8 rtol 1e-12"}, rows, started, notes, key="max_error")
-    return _wp.finish_without_mjx(res, started)
+    return ours, ours("dopri8", 1e-12)[0], {"what": "ours at Dopri8 rtol 1e-12"}
 
 
-markdown = _wp.markdown_without_mjx
-
-
-def main() -> dict:
-    return _wp.main(run, markdown)
+run, markdown, main = _wp.against_twin(SCENE, _build, _twin_rows, SWEEP, NOTES)
 
 
 if __name__ == "__main__":

@@ -109,7 +109,7 @@ def _c_rows(errors) -> list[dict]:
             return ro, to_traj
 
         rows += _wp.sweep_rollout(f"MuJoCo C twin {kind} (mujoco.rollout)", dts, make, errors, T_END,
-                                  setting=_setting(kind), log=lambda r: print(r, flush=True))
+                                  setting=_setting(kind))
         for r in rows[-len(dts):]:
             r["loop_residual_m"] = loops.get(r["dt"], float("nan"))
     mjcb.uninstall()
@@ -131,8 +131,7 @@ def _mjx_rows(errors) -> list[dict]:
 
     return _wp.sweep_fixed("MJX twin RK4 (jit)", MJX_STEPS, run, errors, T_END, compile_s=comp,
                            block=jax.block_until_ready, setting=_setting("RK4"),
-                           extra=lambda out: {"loop_residual_m": float(np.max(out["loop"]))},
-                           log=lambda r: print(r, flush=True))
+                           extra=lambda out: {"loop_residual_m": float(np.max(out["loop"]))})
 
 
 def _callback_cost() -> dict:
@@ -164,9 +163,8 @@ def run() -> dict:
     print(f"reference: y2(2 s) = {y_ref[-1]:.12f} m, {int(ref_steps)} steps; vs AA_results.csv {file_dist:.2e} m",
           flush=True)
     errors = _wp.Errors(y_ref)
-    rows = _wp.sweep_public("ours", list(EXPLICIT), EXPLICIT, ours, errors, log=lambda r: print(r, flush=True))
-    rows += _wp.sweep_public("ours", list(IMPLICIT), IMPLICIT, ours, errors, repeat=3,
-                             log=lambda r: print(r, flush=True))
+    rows = _wp.sweep_public("ours", list(EXPLICIT), EXPLICIT, ours, errors)
+    rows += _wp.sweep_public("ours", list(IMPLICIT), IMPLICIT, ours, errors, repeat=3)
     rows += _c_rows(errors)
     rows += _mjx_rows(errors)
     cost = _callback_cost()
@@ -192,21 +190,13 @@ def run() -> dict:
     res = _wp.finish(NAME, "Nikravesh planar double A-arm", T_END, TARGET, "m", "wheel-assembly CoM height y2",
                      {"what": f"ours Dopri8 rtol {REF_RTOL:g}", "y2_final_m": float(y_ref[-1]),
                       "steps": int(ref_steps), "distance_to_AA_results_m": file_dist},
-                     rows, started, notes)
-    res["notes"] += _wp.headline_notes(res)
+                     rows, started, notes, goals=_wp.PEERS)
     res["trajectory_headline"] = _wp.headline(rows, TARGET, key="max_error")
     res["notes"] += ["On the largest error over the run: " + n[0].lower() + n[1:]
                      for n in _wp.headline_notes({**res, **res["trajectory_headline"]})]
     res["callback_cost"] = cost
     # the twin's method label is "MuJoCo C twin <integrator> (mujoco.rollout)"
-    try:
-        _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False),
-                              lambda dt, row: _c_rollout(dt, row["method"].split()[3]),
-                              log=lambda r: print(r, flush=True))
-    finally:
-        mjcb.uninstall()
-    res["elapsed_s"] = time.perf_counter() - started
-    return res
+    return _wp.conclude(res, started, ours, lambda dt, row: _c_rollout(dt, row["method"].split()[3]))
 
 
 def markdown(results: dict) -> str:

@@ -19,8 +19,6 @@ Run: ``python -m benchmarks.wp_stiff_quarter_car`` (about 3 min).
 
 from __future__ import annotations
 
-import time
-
 import particlesim  # noqa: F401  (float64)
 import jax.numpy as jnp
 
@@ -38,6 +36,16 @@ REF = {"solver": "dopri8", "rtol": 1e-12}
 RTOLS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7)
 SWEEP = {"kvaerno5": RTOLS, "tsit5": RTOLS, "dopri5": RTOLS, "tsit5 PI(0.2, 0.4)": RTOLS, "bosh3 PI(0.2, 0.4)": RTOLS}
 C_STEPS = (5e-3, 4e-3, 3e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2e-5, 1e-5)
+SCENE = _wp.Scene(NAME, "Quarter car, tyre 100x and spring 10x stiffer", T_END, TARGET, "m",
+                  "|chassis z − reference|, largest over the run", key="max_error")
+NOTES = (
+    f"Tyre stiffness {TYRE['stiffness']:.3g} N/m (100x) and suspension spring {SPRING['stiffness']:.3g} N/m "
+    "(10x): the wheel hop's rate rises about tenfold and holds explicit solvers to steps of a few 1e-4 s.",
+    "Error: the largest |chassis z − reference| over 301 saves (10 ms apart); the target applies to it "
+    "(`key = max_error`).",
+    "The twins' loops are soft (MuJoCo clamps the `solref` time constant to ≥ 2 dt), so their error has a floor "
+    "set by the loop compliance at each step.",
+)
 
 
 def scene():
@@ -45,47 +53,32 @@ def scene():
     return mech, jnp.asarray(x0)
 
 
-def run() -> dict:
-    started = time.perf_counter()
+def _build():
     mech, x0 = scene()
     ours = _ours(mech, x0)
     ref_z, ref_steps, _ = ours(REF["solver"], REF["rtol"])
-    errors = _wp.Errors(ref_z)
-    rows = _wp.sweep_public("ours", tuple(SWEEP), SWEEP, ours, errors, log=lambda r: print(r, flush=True))
+    return ours, ref_z, {"what": f"ours Dopri8 rtol {REF['rtol']:g} atol {REF['rtol'] * 1e-2:g}",
+                         "steps": int(ref_steps)}
+
+
+def _c_rows(errors) -> list[dict]:
+    rows = []
     try:
         for integrator in ("RK4", "implicitfast"):
             rows += _wp.sweep_rollout(f"MuJoCo C twin {integrator} (mujoco.rollout)", C_STEPS,
                                       lambda dt, i=integrator: _c_make(dt, i, SPRING, TYRE), errors, T_END,
-                                      setting=_setting,
-                                      log=lambda r: print(r, flush=True))
+                                      setting=_setting)
     finally:
         mjcb.uninstall()
-    notes = [
-        f"Tyre stiffness {TYRE['stiffness']:.3g} N/m (100x) and suspension spring {SPRING['stiffness']:.3g} N/m "
-        "(10x): the wheel hop's rate rises about tenfold and holds explicit solvers to steps of a few 1e-4 s.",
-        "Error: the largest |chassis z − reference| over 301 saves (10 ms apart); the target applies to it "
-        "(`key = max_error`).",
-        "The twins' loops are soft (MuJoCo clamps the `solref` time constant to ≥ 2 dt), so their error has a floor "
-        "set by the loop compliance at each step.",
-    ]
-    res = _wp.finish(NAME, "Quarter car, tyre 100x and spring 10x stiffer", T_END, TARGET, "m",
-                     "|chassis z − reference|, largest over the run",
-                     {"what": f"ours Dopri8 rtol {REF['rtol']:g} atol {REF['rtol'] * 1e-2:g}",
-                      "steps": int(ref_steps)}, rows, started, notes=notes, key="max_error")
-    try:
-        _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False),
-                              lambda dt, row: _c_make(dt, "implicitfast" if "implicitfast" in row["method"]
-                                                      else "RK4", SPRING, TYRE)[0])
-    finally:
-        mjcb.uninstall()
-    return _wp.finish_without_mjx(res, started)
+    return rows
 
 
-markdown = _wp.markdown_without_mjx
+def _twin(dt, row):
+    """The twin at step ``dt`` with the integrator of the headline ``row`` (for the interleaved check)."""
+    return _c_make(dt, "implicitfast" if "implicitfast" in row["method"] else "RK4", SPRING, TYRE)[0]
 
 
-def main() -> dict:
-    return _wp.main(run, markdown)
+run, markdown, main = _wp.against_twin(SCENE, _build, _c_rows, SWEEP, NOTES, peer_make=_twin)
 
 
 if __name__ == "__main__":

@@ -133,16 +133,15 @@ def run() -> dict:
     print(f"equilibrium {eq_s:.1f} s (force residual {float(eq.force_residual):.1e} N); reference heave(3 s) "
           f"{ref_z[-1]:.12f} m, {int(ref_steps)} steps, switches at {switches} s", flush=True)
     errors = _wp.Errors(ref_z)
-    log = lambda r: print(r, flush=True)  # noqa: E731
-    rows = _wp.sweep_public("ours", list(SWEEP), SWEEP, ours, errors, log=log)
-    rows += _wp.sweep_public("ours", list(IMPLICIT), IMPLICIT, ours, errors, log=log)
+    rows = _wp.sweep_public("ours", list(SWEEP), SWEEP, ours, errors)
+    rows += _wp.sweep_public("ours", list(IMPLICIT), IMPLICIT, ours, errors)
     for r in rows:
         r["events"] = len(located[(r["method"].removeprefix("ours "), float(r["setting"].split()[1]))][0])
     compiles, trajs = {}, {}
     try:
         rows += _wp.sweep_rollout("MuJoCo C twin RK4 (mujoco.rollout)", C_STEPS,
                                   lambda dt: _c_make(mech, q, dt, compiles=compiles, trajs=trajs), errors, T_END,
-                                  setting=lambda dt: f"dt {dt:g} (solref {tv.solref_tc(dt):g} s)", log=log)
+                                  setting=lambda dt: f"dt {dt:g} (solref {tv.solref_tc(dt):g} s)")
     finally:
         mjcb.uninstall()
     for r in rows:
@@ -212,12 +211,8 @@ def run() -> dict:
             f"faster against it (the headline's step is the coarsest passing one, interpolated).")
     res["static_equilibrium"] = {"seconds_with_compile": eq_s, "force_residual_N": float(eq.force_residual),
                                  "constraint_residual_m": float(eq.constraint_residual)}
-    try:
-        _wp.check_interleaved(res, lambda solver, rtol: ours(solver, rtol, False),
-                              lambda dt, row: _c_make(mech, q, dt)[0], log=log, **INTERLEAVED)
-    finally:
-        mjcb.uninstall()
-    return _wp.finish_without_mjx(res, started)
+    res["notes"] += _wp.headline_notes(res, peers=("MuJoCo C",))
+    return _wp.conclude(res, started, ours, lambda dt, row: _c_make(mech, q, dt)[0], **INTERLEAVED)
 
 
 markdown = _wp.markdown_without_mjx
