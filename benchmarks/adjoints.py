@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import time
 
-import particlesim  # noqa: F401  (float64)
 import diffrax
 import jax
 import jax.numpy as jnp

@@ -47,7 +47,6 @@ import tempfile
 import threading
 import time
 
-import particlesim  # noqa: F401  (float64)
 import jax
 import jax.numpy as jnp
 import numpy as np

@@ -30,7 +30,6 @@ import functools
 import json
 import time
 
-import particlesim  # noqa: F401  (float64)
 import jax
 import jax.numpy as jnp
 import mujoco

@@ -39,7 +39,6 @@ import sys
 import time
 import warnings
 
-import particlesim  # noqa: F401  (float64)
 import mujoco
 import numpy as np
 

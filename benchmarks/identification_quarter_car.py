@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import time
 
-import particlesim  # noqa: F401  (float64)
 import jax.numpy as jnp
 import numpy as np
 

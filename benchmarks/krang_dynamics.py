@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import time
 
-import particlesim  # noqa: F401  (float64)
 import jax
 import jax.numpy as jnp
 import mujoco

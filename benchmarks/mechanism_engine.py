@@ -24,7 +24,6 @@ import copy
 import json
 import time
 
-import particlesim  # noqa: F401  (float64)
 import jax
 import jax.numpy as jnp
 import mujoco

@@ -16,7 +16,6 @@ import mujoco
 import jax.numpy as jnp
 import numpy as np
 
-import particlesim  # noqa: F401  (float64)
 from particlesim.mechanism import accelerations, chain_accelerations, chain_plan, mass_properties, project
 from particlesim.scenes.chains import chain_geometry, chain_mechanism
 from particlesim.twins.chains import chain_mjcf

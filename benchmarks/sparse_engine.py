@@ -20,7 +20,6 @@ import dataclasses
 import time
 import warnings
 
-import particlesim  # noqa: F401  (float64)
 import jax
 import jax.numpy as jnp
 import numpy as np

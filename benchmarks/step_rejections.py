@@ -14,7 +14,6 @@ Writes ``results/step_rejections.{json,csv}``. Run: ``python -m benchmarks.step_
 
 from __future__ import annotations
 
-import particlesim  # noqa: F401  (float64)
 import diffrax
 import jax.numpy as jnp
 

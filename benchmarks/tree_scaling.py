@@ -17,7 +17,6 @@ from __future__ import annotations
 import os
 import time
 
-import particlesim  # noqa: F401  (float64)
 import jax
 import jax.numpy as jnp
 import numpy as np

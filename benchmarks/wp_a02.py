@@ -15,7 +15,6 @@ Run: ``python -m benchmarks.wp_a02``.
 
 from __future__ import annotations
 
-import particlesim  # noqa: F401  (float64)
 import jax.numpy as jnp
 import numpy as np
 from scipy.integrate import solve_ivp

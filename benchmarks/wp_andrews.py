@@ -16,7 +16,6 @@ Run: ``python -m benchmarks.wp_andrews``.
 
 from __future__ import annotations
 
-import particlesim  # noqa: F401  (float64)
 import jax.numpy as jnp
 import mujoco
 import numpy as np

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import time
 
-import particlesim  # noqa: F401  (float64)
 import jax
 import jax.numpy as jnp
 import mujoco

@@ -19,7 +19,6 @@ Run: ``python -m benchmarks.wp_stiff_quarter_car`` (about 3 min).
 
 from __future__ import annotations
 
-import particlesim  # noqa: F401  (float64)
 import jax.numpy as jnp
 
 from particlesim.scenes import quarter_car as qc
