@@ -13,7 +13,7 @@ DOCS_STAMP  := $(VENV)/.docs-stamp
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test]"
+	$(PY) -m pip install --quiet -e ".[test,peers]"
 	touch $(STAMP)
 
 ## run: the main job (writes its table/plot/numbers under out/)
