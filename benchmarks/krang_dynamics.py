@@ -267,8 +267,8 @@ def run() -> dict:
     rows.append(_row("Pinocchio ABA (C++, one call per state from Python)", t_aba, "per call"))
     # One state inside a compiled scan against pin.aba, interleaved lap by lap (the two rows above are measured
     # minutes apart, with other programs run between them, while the shared machine drifts by 10 % and more): per lap,
-    # 1000 scan steps, then 1024 pin.aba. pin.aba's time includes its Python call (8.3-8.4 us per call here against
-    # abaInParallel's 5.7 us per state on one thread): the goal's measure, not the C++ ABA alone.
+    # 1000 scan steps, then 1024 pin.aba. pin.aba's time includes its Python call (it costs more per state than
+    # abaInParallel on one thread, which has none): the goal's measure, not the C++ ABA alone.
     scan_laps = []
     for _ in range(INTERLEAVED_LAPS):
         t0 = time.perf_counter()

@@ -10,8 +10,8 @@ The tables go between the ``<!-- BENCHMARKS:START -->`` and ``<!-- BENCHMARKS:EN
 ``benchmarks/README.md``; the hand-written text around them is kept.
 
 Each module runs in a fresh Python process (``python -m benchmarks.<name>``), so that no benchmark inherits the
-state another left behind: measured here, Krang's rollout ran 2.2x slower (143 ms instead of 65 ms) in the process
-that had just run ``krang_dynamics`` (its MJX programs, MuJoCo's and Pinocchio's thread pools) than in a fresh one.
+state another left behind: in the process that has just run ``krang_dynamics`` (its MJX programs, MuJoCo's and
+Pinocchio's thread pools) Krang's rollout runs more than twice as slow as in a fresh one.
 """
 
 from __future__ import annotations

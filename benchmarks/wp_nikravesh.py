@@ -6,11 +6,12 @@ atol 1e-14), sampled every 10 ms: at 2 s (final state) and the largest over the 
 2 s, so the final-state error measures the static equilibrium only (a first-order integrator reaches it too); the
 largest error over the run is the one that tells the methods apart, and it gets its own headline.
 
-* ours: Tsit5, Dopri5, Dopri8 and Kvaerno5 over a sweep of rtol (atol = rtol / 100), one compile per solver
-  (tolerances are traced); the reference is the Dopri8 program, compiled once for both. Bosh3 is left out to keep
-  the module within its time budget (another 18-26 s of compile; it was never the cheapest at 1e-6 m);
-* MuJoCo C twin: RK4 over a sweep of fixed steps (tyre in a Python passive callback at every stage, loop
-  ``solref`` time constant 2 dt), Euler and implicitfast over short sweeps (first order);
+* ours: Tsit5, Dopri5, Dopri8 and Kvaerno5 over a sweep of rtol (atol = rtol / 100), through the public entry point
+  (its compiled program cached per structure and settings, compile listed separately). Bosh3 is left out to keep
+  the module within its time budget: it adds about 20 s of compile and is not the cheapest at 1e-6 m;
+* MuJoCo C twin: in its native loop (``mujoco.rollout``), the tyre a compiled C passive callback at every stage,
+  loop ``solref`` time constant 2 dt: RK4 over a sweep of fixed steps, Euler and implicitfast over short sweeps
+  (first order);
 * MJX twin: our RK4 loop around MJX's forward stages (tyre per stage), one compile, a few steps.
 
 Run: ``python -m benchmarks.wp_nikravesh``.
@@ -25,7 +26,6 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from particlesim.mechanism import simulate_mechanism
 from particlesim.scenes import nikravesh as nk
 from particlesim.twins.nikravesh import mjx_rollout, solref_tc, twin_xml
 
@@ -47,21 +47,14 @@ REF_RTOL = 1e-12
 C_RK4_STEPS = (4e-2, 2e-2, 1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4)
 C_FIRST_ORDER_STEPS = (1e-3, 1e-4)
 MJX_STEPS = (5e-3, 2e-3, 1e-3, 5e-4)
-COST_STEPS = 2000  # RK4 steps timed with and without the Python tyre callback
+COST_STEPS = 2000  # RK4 steps timed with and without the tyre callback
 
 
 def _ours(mech, x0):
     k = mech.point_index(nk.WHEEL_COM)
-    xd0 = jnp.zeros_like(x0)
     wheel = jax.jit(jax.vmap(lambda m, x: m.point_position(k, m.all_positions(x))[1], in_axes=(None, 0)))
-
-    def run(solver, rtol, saves=True):
-        s = simulate_mechanism(mech, x0, xd0, 0.0, T_END, solver=solver, rtol=rtol, atol=rtol * 1e-2,
-                               max_steps=1_000_000, saveat_ts=TS if saves else None)
-        q = s.q.block_until_ready()
-        return (np.asarray(wheel(mech, q)) if saves else q), s.steps, s.rejected
-
-    return run
+    return _wp.public_runner(mech, x0, jnp.zeros_like(x0), T_END, TS, lambda s: np.asarray(wheel(mech, s.q)),
+                             max_steps=1_000_000)
 
 
 def _setting(kind: str):
