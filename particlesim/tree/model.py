@@ -351,27 +351,21 @@ class TreeModel(eqx.Module):
         g = jnp.asarray(self._maps(self.joint_nv)[0])
         return g.T @ a @ g
 
-    def coordinate_blocks(self):
+    def coordinate_blocks(self) -> tuple:
         """``(joint index, kind, q offset, qd offset)`` of every joint that owns coordinates, in order."""
-        iq = iv = 0
-        for i, (k, m) in enumerate(zip(self.kinds, self.mimic)):
-            if not m:
-                yield i, k, iq, iv
-                iq, iv = iq + _NQ.get(k, 1), iv + _NV.get(k, 1)
+        return _coordinate_blocks(self.kinds, self.mimic)
 
     def check_configuration(self, q) -> None:
         """Raise :class:`ModelError` naming the joint if a free or ball joint's quaternion in the concrete
         configuration ``q`` is not of unit length (a zero or drifted quaternion would give NaN or a scaled frame)."""
         if not _concrete(q) or not self.multi_dof:
             return
-        q = np.asarray(q, dtype=float)
-        for i, k, iq, _ in self.coordinate_blocks():
-            if k in (FREE, BALL):
-                quat = q[iq + 3:iq + 7] if k == FREE else q[iq:iq + 4]
-                n = float(np.linalg.norm(quat))
-                if not abs(n - 1.0) <= 1e-6:
-                    raise ModelError(f"joint '{self.joint_names[i]}': its quaternion [qx, qy, qz, qw] in q has length "
-                                     f"{n!r}; give a unit quaternion")
+        slots, joints = _quaternion_slots(self.kinds, self.mimic)
+        lengths = np.linalg.norm(np.asarray(q, dtype=float)[slots], axis=-1)
+        for j, n in zip(joints, lengths):
+            if not abs(n - 1.0) <= 1e-6:
+                raise ModelError(f"joint '{self.joint_names[j]}': its quaternion [qx, qy, qz, qw] in q has length "
+                                 f"{float(n)!r}; give a unit quaternion")
 
     def check_quaternions_nonzero(self, q) -> None:
         """Raise :class:`ModelError` naming the joint if a free or ball joint's quaternion in the concrete
@@ -649,18 +643,23 @@ def check_quaternions_nonzero(model: "TreeModel", q) -> None:
 
 
 @functools.lru_cache(maxsize=256)
-def _quaternion_slots(kinds: tuple, mimic: tuple) -> tuple[np.ndarray, tuple]:
-    """Positions in ``q`` of every free or ball joint's quaternion (``(k, 4)``) and those joints' indices."""
-    slots, joints, iq = [], [], 0
+def _coordinate_blocks(kinds: tuple, mimic: tuple) -> tuple:
+    """:meth:`TreeModel.coordinate_blocks` of a structure (joint kinds and mimic flags)."""
+    blocks, iq, iv = [], 0, 0
     for i, (k, m) in enumerate(zip(kinds, mimic)):
-        if m:
-            continue
-        if k in (FREE, BALL):
-            start = iq + 3 if k == FREE else iq
-            slots.append(range(start, start + 4))
-            joints.append(i)
-        iq += _NQ.get(k, 1)
-    return np.asarray(slots, dtype=np.intp).reshape(-1, 4), tuple(joints)
+        if not m:
+            blocks.append((i, k, iq, iv))
+            iq, iv = iq + _NQ.get(k, 1), iv + _NV.get(k, 1)
+    return tuple(blocks)
+
+
+@functools.lru_cache(maxsize=256)
+def _quaternion_slots(kinds: tuple, mimic: tuple) -> tuple[np.ndarray, tuple]:
+    """Positions in ``q`` of every free or ball joint's quaternion (``(k, 4)``: a free joint's after its position)
+    and those joints' indices."""
+    quats = [(i, iq + 3 if k == FREE else iq) for i, k, iq, _ in _coordinate_blocks(kinds, mimic) if k in (FREE, BALL)]
+    return (np.asarray([range(s, s + 4) for _, s in quats], dtype=np.intp).reshape(-1, 4),
+            tuple(i for i, _ in quats))
 
 
 @functools.lru_cache(maxsize=256)
