@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from particlesim.io import load_urdf
 from particlesim.scenes.krang import urdf_path
@@ -62,12 +63,6 @@ def robot(request):
                              quaternions=(3,) if floating else ())
     out = {k: np.asarray(v) for k, v in batched_terms(model, ())(q, qd, tau, qdd).items() if k != "jac"}
     return dict(path=path, floating=floating, model=model, q=q, qd=qd, tau=tau, out=out)
-
-
-def _quat_rotation(x, y, z, w):
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 def test_jaxsim_agrees(robot):
@@ -141,7 +136,7 @@ def test_drake_agrees(robot):
         tdot_v = np.zeros(nv)
         if floating:
             q_d[:4], q_d[4:7] = np.r_[q[6], q[3:6]], q[:3]
-            r = _quat_rotation(*q[3:7])
+            r = Rotation.from_quat(q[3:7]).as_matrix()  # scipy's order is ours: (x, y, z, w)
             t[0:3, 3:6], t[3:6, 0:3] = r, r
             tdot_v[3:6] = r @ np.cross(qd[3:6], qd[0:3])
         plant.SetPositions(ctx, q_d)
