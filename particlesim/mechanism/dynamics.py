@@ -19,7 +19,7 @@ Solve (``M`` is constant, so everything that depends on parameters only is compu
 by one Cholesky factorisation of ``S`` per evaluation; :mod:`._algebra` arranges ``S``, ``J y`` and ``M^-1 J^T lam``
 as a few small dense products with constants of the parameter set, and gravity's ``M^-1 Q_g`` is one of them. When ``M_s`` is singular
 (a free particle carried by no body, e.g. the joint of two massless links) the full saddle-point system is solved
-instead (:func:`accelerations_kkt`, LU), the reference for every mechanism.
+instead (:func:`_solve_kkt`, LU), the reference for every mechanism.
 """
 
 from __future__ import annotations

@@ -138,7 +138,7 @@ def point_force_terms(mech: Mechanism, t, q, qd, read, contact=None):
     ``idx`` (P,), a static index array that may repeat points (the caller sums them); ``None`` if the mechanism has
     none of them. ``read(idx)`` returns the positions and velocities ``(len(idx), 3)`` of the points ``idx`` (static),
     so that only the points the forces read are computed. ``contact`` (T,) fixes each tyre's law (in contact or not)
-    instead of reading it from the sign of its deflection: the smooth branch of an evented rollout (:mod:`.events`).
+    instead of reading it from the sign of its deflection: the smooth branch of an evented rollout (:func:`particlesim._ode.integrate_events`).
     An applied force whose function does not return shape (3,) raises ``ModelError`` naming it."""
     topo = mech.topo
     forces_applied = [ap for ap in mech.applied if isinstance(ap, AppliedForce)]

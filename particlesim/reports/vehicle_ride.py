@@ -35,7 +35,8 @@ SPEED = 15.0  # m/s
 ROAD_CLASS = "C"
 SEEDS = (1, 2)  # left and right tracks
 BUMP = {"height": 0.05, "start": 0.3, "duration": 0.1}  # m, s, s: under the front wheels
-ISO_START, ISO_FADE = 1.2, 0.5  # s: the random road fades in over ISO_FADE from ISO_START
+ISO_START = 1.2  # s: the random road fades in from here ...
+ISO_FADE = 0.5  # s: ... over this long
 DURATION = 3.5  # s
 N_SAVE = 701  # 200 Hz
 #: The rig's rollout settings; ``max_step`` below the bump's duration, so that a step from rest cannot stride over it.
