@@ -31,6 +31,25 @@ def median_time(fn: Callable[[], object], *, number: int, repeat: int = 7, block
     return statistics.median(times)
 
 
+def compile_and_time(fn: Callable[[], object], *, number: int = 1, repeat: int = 3,
+                     block: Callable = lambda x: x) -> tuple[float, float, object]:
+    """``(compile s, run s per call, first output)`` of a function whose first call compiles: the run time is the
+    median over ``repeat`` runs of ``number`` calls after the first, the compile time the first call's less one
+    run (never negative)."""
+    t = time.perf_counter()
+    out = block(fn())
+    first = time.perf_counter() - t
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        for _ in range(number):
+            last = fn()
+        block(last)
+        times.append((time.perf_counter() - t) / number)
+    run = statistics.median(times)
+    return max(first - run, 0.0), run, out
+
+
 def timed(fn: Callable[[], object]) -> tuple[float, object]:
     t = time.perf_counter()
     out = fn()

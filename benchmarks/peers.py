@@ -6,13 +6,16 @@ quantities timed here is tested in ``tests/tree/test_peers.py`` (M, bias, forwar
 Forward dynamics, on Krang (``krang_fixed_base_2018.urdf``, 17 joints, fixed base) and Solo-12 (12 joints on a
 floating base), µs per state:
 
-* one call from Python with a new state: ours ``forward_dynamics(model, q, qd, tau)``; jaxsim
-  ``forward_dynamics_aba(model, data, joint_forces=tau)`` on a data object built beforehand (its cheapest call);
-  Drake ``SetPositionsAndVelocities`` then the generalized-acceleration output port (its continuous forward
-  dynamics, articulated bodies);
+* one call from Python with a new state and force: ours ``forward_dynamics(model, q, qd, tau)``; jaxsim its
+  ``forward_dynamics_aba`` under ``jax.jit`` from the same arrays (its data object built inside); Drake
+  ``SetPositionsAndVelocities``, the force on the applied-generalized-force port, then the generalized-acceleration
+  output port (its continuous forward dynamics, articulated bodies), from state vectors in its own coordinates;
 * inside one compiled loop over 256 states (ours and jaxsim: ``jax.lax.fori_loop``; Drake has no such loop);
-* a batch of 1024 states: ours passed directly (the batch path) and ``jit(vmap)`` of the one-state call, jaxsim
-  ``jit(vmap)``, Drake a Python loop over the states (it has no batch call).
+* a batch of 1024 states: ours passed directly (the batch path, on one thread: ``tree.aba.BATCH_THREADS = 1``) and
+  ``jit(vmap)`` of the one-state call, jaxsim ``jit(vmap)``, Drake a Python loop over the states (it has no batch
+  call).
+
+Compile times are a first call's time less one run's.
 
 Rollouts: Krang's fixed-base file without its collision and visual elements (no ground here), joint limits opened
 (±1000 rad) and ``<dynamics damping="1"/>`` on every joint (viscous friction, read by all three), gravity -z, from
@@ -24,8 +27,7 @@ meeting the target (the same rule for all), its time the median of three runs, i
   per solver (tolerances traced);
 * jaxsim ``model.step`` with its RK4 integrator over the model's ``time_step`` (one compile per step size: it is
   a static field), the rollout a ``jax.lax.scan`` of it; ``step`` evaluates the joint friction once per step and
-  holds it over the stages, so its error falls like ``dt``: the sweep shows the order and says the step the target
-  would need;
+  holds it over the stages, so its error falls like ``dt`` (the sweep shows the order);
 * jaxsim stage-wise: the classical RK4 over ``forward_dynamics_aba`` with its own joint torques
   (``compute_resultant_torques``, friction included) at every stage, step and count traced (one compile);
 * Drake ``Simulator`` with its error-controlled RK3 (its default) and RK5 over ``set_target_accuracy``, and RK5 in
@@ -36,8 +38,8 @@ Gradients: d/ds at s = 1 of the rollout loss ``sum over saves and joints of q^2`
 the rollouts' accuracy), ours by reverse mode through ``simulate`` at its target-meeting Tsit5 rtol, jaxsim by
 reverse mode through the stage-wise RK4 at its target-meeting step (Drake: not differentiable from Python).
 
-Batched rollouts: 64 members with damping 0.5–2 N m s/rad, ours ``sharded_vmap(chunk=4)`` (the chunked vmap the
-batch docs recommend for adaptive rollouts) and jaxsim ``jit(vmap)`` of the stage-wise RK4, both at their
+Batched rollouts: 64 members with damping 0.5–2 N m s/rad, ours ``sharded_vmap(chunk=4, threads=1)`` (the chunked
+vmap the batch docs recommend for adaptive rollouts, on one thread) and jaxsim ``jit(vmap)`` of the stage-wise RK4, both at their
 target-meeting settings; rollouts per second (Drake: a Python loop, one rollout after another).
 
 Run: ``python -m benchmarks.peers``. Writes ``benchmarks/results/peers.{json,csv,png}``.
@@ -45,6 +47,9 @@ Run: ``python -m benchmarks.peers``. Writes ``benchmarks/results/peers.{json,csv
 
 from __future__ import annotations
 
+import functools
+import importlib
+import itertools
 import logging
 import os
 import re
@@ -56,6 +61,7 @@ from pathlib import Path
 os.environ.setdefault("ROD_SKIP_SDFORMAT_CHECK", "1")  # Debian's sdformat writes SDF 1.9 (tests/tree/test_peers.py)
 
 import jax  # noqa: E402
+import particlesim  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -63,9 +69,9 @@ from particlesim.batch import sharded_vmap  # noqa: E402
 from particlesim.io import load_urdf  # noqa: E402
 from particlesim.scenes.krang import urdf_path  # noqa: E402
 from particlesim.simulate import simulate  # noqa: E402
-from particlesim.tree import forward_dynamics  # noqa: E402
+from particlesim.tree import aba, forward_dynamics  # noqa: E402
 
-from ._common import environment, machine, median_time, pyplot, report, save_figure, timed, write_results  # noqa: E402
+from ._common import compile_and_time, environment, machine, median_time, pyplot, report, save_figure, write_results  # noqa: E402
 
 NAME = "peers"
 GRAVITY = (0.0, 0.0, -9.81)
@@ -77,17 +83,23 @@ TARGET = 1e-6  # rad, over the trajectory
 FV = 1.0  # N m s / rad
 REF = dict(solver="dopri8", rtol=1e-13, atol=1e-15)
 OURS_RTOLS = (1e-4, 5e-5, 2e-5, 1e-5, 5e-6, 2e-6, 1e-6, 1e-7)
-JAXSIM_STEP_DTS = (2e-3, 1e-3, 5e-4)
-JAXSIM_RK4_DTS = (4e-3, 2.5e-3, 2e-3, 1.25e-3, 1e-3, 5e-4)  # whole steps between saves (0.02 s)
-DRAKE_ACCURACIES = {"runge_kutta3": (1e-4, 1e-5, 1e-6, 1e-7, 1e-8),
-                    "runge_kutta5": (1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11)}
-DRAKE_RK5_STEPS = (5e-3, 4e-3, 2.5e-3, 2e-3, 1e-3)
+SAVE_DT = TS[1] - TS[0]
+#: Fixed steps as whole divisions of the save interval (steps per save), coarse to fine.
+JAXSIM_STEP_PER_SAVE = (10, 20, 40)
+JAXSIM_RK4_PER_SAVE = (5, 6, 8, 10, 12, 14, 16, 18, 20, 25, 40)
+DRAKE_RK5_PER_SAVE = (4, 5, 6, 7, 8, 10, 12, 16, 20)
+#: Drake's accuracy settings on 1-2-5 grids, as our tolerances.
+DRAKE_ACCURACIES = {"runge_kutta3": (1e-5, 5e-6, 2e-6, 1e-6, 5e-7, 2e-7, 1e-7, 5e-8),
+                    "runge_kutta5": (1e-8, 5e-9, 2e-9, 1e-9, 5e-10, 2e-10, 1e-10, 5e-11)}
 MEMBERS = 64
 
 
 def _quiet():
-    logging.getLogger("jaxsim").setLevel(logging.ERROR)  # unresolved mesh files: geometry is not used here
-    warnings.filterwarnings("ignore")
+    """jaxsim's warnings of unresolved mesh files (geometry is not used here; importing jaxsim sets its logger's
+    level, so the level is set after) and the loaders' warnings of unmodelled joint limits (ignored as asked)."""
+    importlib.import_module("jaxsim")
+    logging.getLogger("jaxsim").setLevel(logging.ERROR)
+    warnings.filterwarnings("ignore", message=".*(limits|mesh).*")
 
 
 def solo12_path() -> Path:
@@ -120,7 +132,8 @@ class Jaxsim:
         self.floating = ours.floating
         names = list(self.m.joint_names())
         self.idx = np.array([names.index(n) for n in ours.coordinate_names[1 if self.floating else 0:]])
-        self.base = 6 if self.floating else 0
+        self.base = 6 if self.floating else 0  # our velocity coordinates before the joints'
+        self.base_link = list(self.m.link_names()).index(ours.link_names[0])
         self.data0 = js.data.JaxSimModelData.build(model=self.m, velocity_representation=self.repr)
 
     def data(self, q, qd):
@@ -138,8 +151,13 @@ class Jaxsim:
         return jnp.zeros(self.m.dofs()).at[self.idx].set(tau[self.base:])
 
     def forward(self, q, qd, tau):
+        """Traceable: forward dynamics at our state and generalized force (a floating base's six entries as the
+        base link's wrench in its own frame)."""
+        wrench = jnp.zeros((self.m.number_of_links(), 6))
+        if self.floating:
+            wrench = wrench.at[self.base_link].set(tau[:6])
         a_base, a_joints = self.js.model.forward_dynamics_aba(self.m, self.data(q, qd),
-                                                              joint_forces=self.joint_forces(tau))
+                                                              joint_forces=self.joint_forces(tau), link_forces=wrench)
         return jnp.concatenate([a_base, a_joints[self.idx]]) if self.floating else a_joints[self.idx]
 
 
@@ -161,14 +179,22 @@ class Drake:
         self.iv = np.array([j.velocity_start() for j in joints])
         self.nq, self.nv = self.plant.num_positions(), self.plant.num_velocities()
 
-    def state(self, q, qd):
-        """Drake's ``x = (q, v)`` at our state (a floating base at rest in its own frame: timing only)."""
-        x = np.zeros(self.nq + self.nv)
-        x[self.iq] = q[-len(self.iq):]
-        x[self.nq + self.iv] = qd[-len(self.iv):]
-        if self.nq > len(self.iq):
-            x[:4] = 1.0, 0.0, 0.0, 0.0
-        return x
+    def state(self, q, qd, tau):
+        """Drake's ``x = (q, v)`` and generalized force at our state and force (tests/tree/test_peers.py maps them
+        alike): a floating base's ``q = (qw, qx, qy, qz, x, y, z)``, ``v = T v_ours`` in world axes, ``tau = T^-T
+        tau_ours``."""
+        n_base = len(qd) - len(self.iv)
+        x, t = np.zeros(self.nq + self.nv), np.zeros((self.nv, len(qd)))
+        x[self.iq] = q[len(q) - len(self.iq):]
+        t[self.iv, n_base + np.arange(len(self.iv))] = 1.0
+        if n_base:
+            from scipy.spatial.transform import Rotation
+
+            x[:4], x[4:7] = q[[6, 3, 4, 5]], q[:3]
+            r = Rotation.from_quat(q[3:7]).as_matrix()
+            t[0:3, 3:6], t[3:6, 0:3] = r, r
+        x[self.nq:] = t @ qd
+        return x, np.linalg.solve(t.T, tau)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -188,64 +214,62 @@ def forward_rows(label: str, path: Path, floating: bool) -> list[dict]:
     qj, qdj, tj = (jnp.asarray(a) for a in (q, qd, tau))
     rows = []
 
-    def row(peer_name, kind, seconds, compile_s=None, note=""):
-        rows.append(dict(robot=label, peer=peer_name, kind=kind, us_per_state=seconds * 1e6,
-                         compile_s=compile_s, note=note))
-        print(f"  {label:7s} {peer_name:8s} {kind:22s} {seconds * 1e6:9.2f} us/state {note}", flush=True)
+    def row(peer_name, kind, how, timing, per=1):
+        (c, seconds, _) = timing if isinstance(timing, tuple) else (None, timing, None)
+        rows.append(dict(robot=label, peer=peer_name, kind=kind, how=how, us_per_state=seconds / per * 1e6,
+                         compile_s=c))
+        print(f"  {label:7s} {peer_name:8s} {kind:14s} {how:22s} {seconds / per * 1e6:9.2f} us/state", flush=True)
 
     block = jax.block_until_ready
-    # one call from Python, a new state each time
-    states = [(qj[i], qdj[i], tj[i]) for i in range(64)]
-    it = iter(range(10**9))
-    row("ours", "one call", median_time(lambda: forward_dynamics(ours, *states[next(it) % 64]), number=200,
-                                        block=block))
+    aba.BATCH_THREADS = 1  # a batch passed directly runs as one program on one thread, as the peers' do
+    ours_fd = functools.partial(forward_dynamics, ours)
+    # one call from Python, a new state each time (arrays in, as a user passes them)
+    states = itertools.cycle([(qj[i], qdj[i], tj[i]) for i in range(64)])
+    row("ours", "one call", "", compile_and_time(lambda: ours_fd(*next(states)), number=200, block=block))
     with jax.numpy_rank_promotion("allow"):
-        datas = [peer.data(*s[:2]) for s in states]
-        forces = [peer.joint_forces(s[2]) for s in states]
-        fd = peer.js.model.forward_dynamics_aba
-        row("jaxsim", "one call", median_time(lambda: fd(peer.m, datas[(k := next(it) % 64)],
-                                                         joint_forces=forces[k]), number=200, block=block))
+        peer_fd = jax.jit(peer.forward)
+        row("jaxsim", "one call", "", compile_and_time(lambda: peer_fd(*next(states)), number=200, block=block))
     port = drake.plant.get_generalized_acceleration_output_port()
-    xs = [drake.state(q[i], qd[i]) for i in range(64)]
+    force_port = drake.plant.get_applied_generalized_force_input_port()
+    xs = [drake.state(q[i], qd[i], tau[i]) for i in range(64)]
+    drake_states = itertools.cycle(xs)
 
     def drake_call():
-        drake.plant.SetPositionsAndVelocities(drake.ctx, xs[next(it) % 64])
+        x, f = next(drake_states)
+        drake.plant.SetPositionsAndVelocities(drake.ctx, x)
+        force_port.FixValue(drake.ctx, f)
         return port.Eval(drake.ctx)
 
-    row("drake", "one call", median_time(drake_call, number=200))
+    row("drake", "one call", "", median_time(drake_call, number=200))
 
     # a compiled loop over LOOP_STATES states
     def loop_of(f):
-        @jax.jit
+        @functools.partial(jax.jit, compiler_options=particlesim.compiler_options())
         def run(q, qd, tau):
             return jax.lax.fori_loop(0, LOOP_STATES, lambda i, acc: acc + f(q[i], qd[i], tau[i]),
                                      jnp.zeros(ours.nv))
         return run
 
     args = (qj[:LOOP_STATES], qdj[:LOOP_STATES], tj[:LOOP_STATES])
-    for name, f in (("ours", lambda a, b, c: forward_dynamics(ours, a, b, c)), ("jaxsim", peer.forward)):
+    for name, f in (("ours", ours_fd), ("jaxsim", peer.forward)):
         with jax.numpy_rank_promotion("allow"):
             run = loop_of(f)
-            c, _ = timed(lambda: block(run(*args)))
-            row(name, "compiled loop", median_time(lambda: run(*args), number=5, block=block) / LOOP_STATES, c)
+            row(name, "compiled loop", "", compile_and_time(lambda: run(*args), number=5, block=block), LOOP_STATES)
 
-    # a batch of BATCH states
-    c, _ = timed(lambda: block(forward_dynamics(ours, qj, qdj, tj)))
-    row("ours", f"batch {BATCH}, direct", median_time(lambda: forward_dynamics(ours, qj, qdj, tj), number=5,
-                                                     block=block) / BATCH, c)
-    for name, f in (("ours", lambda a, b, c: forward_dynamics(ours, a, b, c)), ("jaxsim", peer.forward)):
+    # a batch of BATCH states, one thread each (the peers' are single-threaded)
+    row("ours", f"batch {BATCH}", "direct, 1 thread",
+        compile_and_time(lambda: ours_fd(qj, qdj, tj), number=5, block=block), BATCH)
+    for name, f in (("ours", ours_fd), ("jaxsim", peer.forward)):
         with jax.numpy_rank_promotion("allow"):
-            run = jax.jit(jax.vmap(f))
-            c, _ = timed(lambda: block(run(qj, qdj, tj)))
-            row(name, f"batch {BATCH}, jit(vmap)", median_time(lambda: run(qj, qdj, tj), number=5, block=block)
-                / BATCH, c)
+            run = jax.jit(jax.vmap(f), compiler_options=particlesim.compiler_options())
+            row(name, f"batch {BATCH}", "jit(vmap)", compile_and_time(lambda: run(qj, qdj, tj), number=5, block=block),
+                BATCH)
 
     def drake_batch():
-        for x in xs * (BATCH // 64):
-            drake.plant.SetPositionsAndVelocities(drake.ctx, x)
-            port.Eval(drake.ctx)
+        for _ in range(BATCH):
+            drake_call()
 
-    row("drake", f"batch {BATCH}, Python loop", median_time(drake_batch, number=1, repeat=3) / BATCH)
+    row("drake", f"batch {BATCH}", "Python loop", median_time(drake_batch, number=1, repeat=3), BATCH)
     return rows
 
 
@@ -261,7 +285,9 @@ def rollout_scene():
 
 
 def error(q, q_ref) -> float:
-    return float(np.max(np.abs(np.asarray(q) - q_ref)))
+    """Largest joint-angle error over the save times (inf for a diverged run)."""
+    d = np.abs(np.asarray(q) - q_ref)
+    return float(np.max(d)) if np.all(np.isfinite(d)) else float("inf")
 
 
 def ours_rollout(solver: str):
@@ -315,13 +341,13 @@ def _replace(obj, path: str, value):
     return dataclasses.replace(obj, **{head: value})
 
 
-def jaxsim_step_rollout(text: str, ours, q0, dt: float):
-    """jaxsim's own ``step`` (RK4 integrator) at ``time_step = dt``: ``(q at TS, compile s, run s)``."""
+def jaxsim_step_rollout(text: str, ours, q0, per: int):
+    """jaxsim's own ``step`` (RK4 integrator), ``per`` steps between saves: ``(q at TS, compile s, run s)``."""
+    dt = SAVE_DT / per
     from jaxsim.api.model import IntegratorType
 
     peer = Jaxsim(text, ours, time_step=dt, integrator=IntegratorType.RungeKutta4)
     js, m, idx = peer.js, peer.m, peer.idx
-    per = int(round((TS[1] - TS[0]) / dt))
     s0 = jnp.zeros(m.dofs()).at[idx].set(q0)
 
     @jax.jit
@@ -331,8 +357,7 @@ def jaxsim_step_rollout(text: str, ours, q0, dt: float):
                                            e.joint_positions), d, None, length=len(TS) - 1)
         return jnp.concatenate([s0[None], qs])[:, idx]
 
-    c, out = timed(lambda: jax.block_until_ready(run(s0)))
-    r = median_time(lambda: run(s0), number=1, repeat=3, block=jax.block_until_ready)
+    c, r, out = compile_and_time(lambda: run(s0), block=jax.block_until_ready)
     return np.asarray(out), c, r
 
 
@@ -380,29 +405,29 @@ def rollout_rows() -> tuple[list[dict], dict]:
             best[method] = r
         return err <= TARGET
 
+    block = jax.block_until_ready
     for solver in ("tsit5", "dopri5"):
         run = ours_rollout(solver)
-        c, _ = timed(lambda: jax.block_until_ready(run(ours, q0j, OURS_RTOLS[0])))
+        c = None
         for rtol in OURS_RTOLS:
-            out = run(ours, q0j, rtol)
-            t = median_time(lambda: run(ours, q0j, rtol), number=1, repeat=3, block=jax.block_until_ready)
+            c_now, t, out = compile_and_time(lambda: run(ours, q0j, rtol), block=block)
+            c = c_now if c is None else c  # the first setting compiles, the others reuse it
             if add("ours", f"simulate {solver}", rtol, error(out[0], q_ref), t, c, int(out[1])):
                 break
-    for dt in JAXSIM_STEP_DTS:
-        out, c, t = jaxsim_step_rollout(text, ours, q0, dt)
-        add("jaxsim", "model.step RK4 (friction held per step)", dt, error(out, q_ref), t, c,
-            int(round(T_END / dt)))
+    for per in JAXSIM_STEP_PER_SAVE:
+        out, c, t = jaxsim_step_rollout(text, ours, q0, per)
+        add("jaxsim", "model.step RK4 (friction held per step)", SAVE_DT / per, error(out, q_ref), t, c,
+            per * (len(TS) - 1))
     peer = Jaxsim(text, ours)
     with jax.numpy_rank_promotion("allow"):
         rk4 = jax.jit(jaxsim_stagewise(peer))
         viscous = jnp.full(peer.m.dofs(), FV)
-        c, _ = timed(lambda: jax.block_until_ready(rk4(viscous, q0j, JAXSIM_RK4_DTS[0], 10)))
-        for dt in JAXSIM_RK4_DTS:
-            per = int(round((TS[1] - TS[0]) / dt))
-            out = rk4(viscous, q0j, dt, per)
-            t = median_time(lambda: rk4(viscous, q0j, dt, per), number=1, repeat=3, block=jax.block_until_ready)
-            if add("jaxsim", "RK4 stage-wise (forward_dynamics_aba)", dt, error(out, q_ref), t, c,
-                   int(round(T_END / dt))):
+        c = None
+        for per in JAXSIM_RK4_PER_SAVE:
+            c_now, t, out = compile_and_time(lambda: rk4(viscous, q0j, SAVE_DT / per, per), block=block)
+            c = c_now if c is None else c
+            if add("jaxsim", "RK4 stage-wise (forward_dynamics_aba)", SAVE_DT / per, error(out, q_ref), t, c,
+                   per * (len(TS) - 1)):
                 break
     drake = Drake(text, ours)
     for scheme, accuracies in DRAKE_ACCURACIES.items():
@@ -410,9 +435,9 @@ def rollout_rows() -> tuple[list[dict], dict]:
             out, t, steps = drake_rollout(drake, q0, scheme, accuracy=acc)
             if add("drake", f"Simulator {scheme} (error-controlled)", acc, error(out, q_ref), t, None, steps):
                 break
-    for step in DRAKE_RK5_STEPS:
-        out, t, steps = drake_rollout(drake, q0, "runge_kutta5", step=step)
-        if add("drake", "Simulator runge_kutta5 (fixed step)", step, error(out, q_ref), t, None, steps):
+    for per in DRAKE_RK5_PER_SAVE:
+        out, t, steps = drake_rollout(drake, q0, "runge_kutta5", step=SAVE_DT / per)
+        if add("drake", "Simulator runge_kutta5 (fixed step)", SAVE_DT / per, error(out, q_ref), t, None, steps):
             break
     return rows, dict(best=best, text=text, ours=ours, q0=q0, q_ref=q_ref, peer=peer, reference_steps=int(ref.steps))
 
@@ -437,11 +462,10 @@ def gradient_and_batch_rows(scene: dict) -> list[dict]:
 
     one = jnp.asarray(1.0)
     g = jax.jit(jax.grad(ours_loss))
-    c, g_ours = timed(lambda: block(g(one)))
-    rows.append(dict(peer="ours", kind="gradient", setting=rtol, run_s=median_time(lambda: g(one), number=1,
-                     repeat=3, block=block), compile_s=c, value=float(g_ours)))
+    c, t, g_ours = compile_and_time(lambda: g(one), block=block)
+    rows.append(dict(peer="ours", kind="gradient", setting=rtol, run_s=t, compile_s=c, value=float(g_ours)))
     if dt is not None:
-        per = int(round((TS[1] - TS[0]) / dt))
+        per = int(round(SAVE_DT / dt))
         jlink = list(peer.m.link_names()).index(_child_of(ours, "LJ1"))
         viscous = jnp.full(peer.m.dofs(), FV)
 
@@ -454,29 +478,25 @@ def gradient_and_batch_rows(scene: dict) -> list[dict]:
 
         with jax.numpy_rank_promotion("allow"):
             gp = jax.jit(jax.grad(peer_loss))
-            c, g_peer = timed(lambda: block(gp(one)))
-            rows.append(dict(peer="jaxsim", kind="gradient", setting=dt, run_s=median_time(
-                lambda: gp(one), number=1, repeat=3, block=block), compile_s=c, value=float(g_peer)))
+            c, t, g_peer = compile_and_time(lambda: gp(one), block=block)
+            rows.append(dict(peer="jaxsim", kind="gradient", setting=dt, run_s=t, compile_s=c, value=float(g_peer)))
     # batched rollouts over damping
     damping = jnp.linspace(0.5, 2.0, MEMBERS)
 
     def ours_member(c_):
-        model = ours.with_params(viscous=jnp.full(ours.nv, 1.0) * c_)
+        model = ours.with_params(viscous=jnp.full(ours.nv, c_))
         return simulate(forward_dynamics, model, q0, jnp.zeros_like(q0), 0.0, T_END, solver="tsit5", rtol=rtol,
                         atol=rtol / 100, saveat_ts=jnp.asarray(TS), max_steps=100_000).q
 
-    batched = sharded_vmap(ours_member, chunk=4)
-    c, _ = timed(lambda: block(batched(damping)))
-    t = median_time(lambda: batched(damping), number=1, repeat=3, block=block)
+    batched = sharded_vmap(ours_member, chunk=4, threads=1)  # one thread, as the peer's one program
+    c, t, _ = compile_and_time(lambda: batched(damping), block=block)
     rows.append(dict(peer="ours", kind=f"{MEMBERS} rollouts", setting=rtol, run_s=t, compile_s=c,
                      value=MEMBERS / t))
     if dt is not None:
-        per = int(round((TS[1] - TS[0]) / dt))
         rk4 = jaxsim_stagewise(peer)
         with jax.numpy_rank_promotion("allow"):
-            vb = jax.jit(jax.vmap(lambda c_: rk4(jnp.full(peer.m.dofs(), 1.0) * c_, q0, dt, per)))
-            c, _ = timed(lambda: block(vb(damping)))
-            t = median_time(lambda: vb(damping), number=1, repeat=3, block=block)
+            vb = jax.jit(jax.vmap(lambda c_: rk4(jnp.full(peer.m.dofs(), c_), q0, dt, per)))
+            c, t, _ = compile_and_time(lambda: vb(damping), block=block)
         rows.append(dict(peer="jaxsim", kind=f"{MEMBERS} rollouts", setting=dt, run_s=t, compile_s=c,
                          value=MEMBERS / t))
     for r in rows:
@@ -524,6 +544,12 @@ def write(res: dict) -> None:
                 title=f"Krang, damped 2 s fall: ours, jaxsim, Drake\n{machine(res['environment'])}")
 
 
+def _forward_cell(r: dict) -> str:
+    how = f" {r['how']}" if r["how"] else ""
+    comp = "" if r["compile_s"] is None else f", compile {r['compile_s']:.1f} s"
+    return f"{r['us_per_state']:.2f}{how}{comp}"
+
+
 def markdown(res: dict) -> str:
     env = res["environment"]
     out = [f"### Peers: jaxsim {res['peer_versions']['jaxsim']} and Drake {res['peer_versions']['drake']} "
@@ -532,24 +558,15 @@ def markdown(res: dict) -> str:
            "Forward dynamics, µs per state (ratio: the peer's time over ours in the same row kind; compile beside):",
            "", "| robot | row | ours | jaxsim | Drake |", "|---|---|---|---|---|"]
     for robot in dict.fromkeys(r["robot"] for r in res["forward"]):
-        kinds = dict.fromkeys(r["kind"].replace("direct", "").replace("jit(vmap)", "").replace("Python loop", "")
-                              .rstrip(", ") for r in res["forward"] if r["robot"] == robot)
-        for kind in kinds:
-            cells = {}
-            for r in res["forward"]:
-                if r["robot"] == robot and r["kind"].startswith(kind):
-                    how = r["kind"][len(kind):].lstrip(", ")
-                    comp = "" if r["compile_s"] is None else f", compile {r['compile_s']:.1f} s"
-                    cells.setdefault(r["peer"], []).append(f"{r['us_per_state']:.2f}{' ' + how if how else ''}{comp}")
-            ours = min(r["us_per_state"] for r in res["forward"]
-                       if r["robot"] == robot and r["kind"].startswith(kind) and r["peer"] == "ours")
+        for kind in dict.fromkeys(r["kind"] for r in res["forward"] if r["robot"] == robot):
+            mine = [r for r in res["forward"] if r["robot"] == robot and r["kind"] == kind]
+            best = {p: min(r["us_per_state"] for r in mine if r["peer"] == p) for p in {r["peer"] for r in mine}}
 
             def cell(p):
-                if p not in cells:
+                if p not in best:
                     return "—"
-                mine = min(r["us_per_state"] for r in res["forward"]
-                           if r["robot"] == robot and r["kind"].startswith(kind) and r["peer"] == p)
-                return "; ".join(cells[p]) + ("" if p == "ours" else f" (**{mine / ours:.2f}×**)")
+                text = "; ".join(_forward_cell(r) for r in mine if r["peer"] == p)
+                return text + ("" if p == "ours" else f" (**{best[p] / best['ours']:.2f}×**)")
 
             out.append(f"| {robot} | {kind} | {cell('ours')} | {cell('jaxsim')} | {cell('drake')} |")
     ours_best = min((r for m, r in res["best"].items() if r["peer"] == "ours"), key=lambda r: r["run_s"])
