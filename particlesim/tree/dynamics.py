@@ -292,7 +292,8 @@ def forward_dynamics(model: TreeModel, q: Float[ArrayLike, "... nq"], qd: Float[
     inside a caller's trace (``jit``, ``vmap``, ``grad``) a batch always takes the sweeps. A larger batch passed from
     Python is split into one part per usable core, each run on its own thread (:func:`~.aba.batch_parts`; set
     ``particlesim.tree.aba.BATCH_THREADS = 1`` for one program). Pass batches directly rather than vmapping; models
-    with mimic, free or ball joints evaluate a batch state by state.
+    with mimic, free or ball joints evaluate a batch state by state, where ``jax.jit(jax.vmap(...))`` of the one-state
+    call is faster on one core (the direct call splits the batch over the cores).
 
     External wrenches enter through ``tau``: add :func:`~.kinematics.wrench_torques` (``J^T f``, eq. 16).
     ``smooth_friction=eps`` replaces ``sign(qd)`` by ``tanh(qd / eps)`` (differentiable at ``qd = 0``).
