@@ -17,6 +17,7 @@ Locally the module skips when a peer or the converter is missing; in CI (``CI`` 
 
 import os
 import shutil
+import subprocess
 import warnings
 from importlib import metadata
 from pathlib import Path
@@ -66,8 +67,10 @@ def robot(request):
 
 
 def test_jaxsim_agrees(robot):
-    if not os.environ.get("CI") and not (shutil.which("gz") or shutil.which("ign")):
-        pytest.skip("jaxsim reads URDF through sdformat's gz/ign executable: not on PATH")
+    if not os.environ.get("CI") and not any(shutil.which(x) and subprocess.run([x, "sdf", "--help"],
+                                                                               capture_output=True).returncode == 0
+                                            for x in ("gz", "ign")):
+        pytest.skip("jaxsim reads URDF through sdformat's `gz sdf` / `ign sdf`: not available")
     os.environ.setdefault("ROD_SKIP_SDFORMAT_CHECK", "1")
     _need("jaxsim")
     import jax
