@@ -246,9 +246,8 @@ def markdown(results: dict) -> str:
               "differentiate its step-size controller), while the differences also see the step sizes move. "
               "DirectAdjoint's reverse pass departs from the other discrete adjoints (the column 'vs checkpoint'); "
               "tests/test_adjoints.py shows the same on a 3-joint arm while its forward mode agrees. Krang's "
-              "forward mode has departed from the checkpointed gradient by ~1e-10 since the accelerations' solve "
-              "takes its tangent from inverse dynamics (2026-12-05; 4e-13 before; one-state Jacobians agree to "
-              "4e-14, cause not found). Forward mode "
+              "forward mode departs from the checkpointed gradient by ~1e-10 (one-state Jacobians agree to 4e-14; "
+              "cause not found). Forward mode "
               "costs one tangent per parameter. The machine is shared: run times vary between runs by up to 2× "
               "(the JSON records the load).",
               "", f"Whole module: {results['elapsed_s']:.0f} s wall.", ""]

@@ -124,8 +124,7 @@ def run() -> dict:
         "compiled C `mjcb_passive` (particlesim.twins.callbacks), its step swept from coarse to fine; the ratio uses its "
         "time interpolated (log-log) to exactly the target error.",
         "The step here is bounded by stability (the tyre on the wheel mass, ~70 rad/s), not accuracy: with the "
-        "default step-size controller (integral control, `pid=(0, 1, 0)`; so too under the PI (0.4, 1, 0) default "
-        "before) a quarter of the explicit steps are rejected and step counts "
+        "default step-size controller (integral control, `pid=(0, 1, 0)`) a quarter of the explicit steps are rejected and step counts "
         "barely move with rtol. Rows labelled PI(0.2, 0.4) pass `pid=(0.2, 0.4, 0.0)` to `simulate_mechanism` "
         "(diffrax's less sensitive controller for mildly stiff problems), as a user would for such a scene.",
     ]
